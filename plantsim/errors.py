@@ -1,0 +1,29 @@
+"""The project's own failures, in one place (after laspy's ``errors.py``).
+
+Plain argument errors stay ``ValueError`` / ``FileNotFoundError``; these are for
+failures of plantsim's own work that a user can still act on.
+"""
+
+
+class PlantSimError(Exception):
+    """Base class of every plantsim failure."""
+
+
+class MeshError(PlantSimError):
+    """A plant mesh cannot be used: unreadable, empty, or with bad vertices."""
+
+
+class ConfigError(PlantSimError, ValueError):
+    """A configuration value or file is invalid."""
+
+
+class SceneError(PlantSimError):
+    """The MuJoCo scene failed to compile or raised warnings."""
+
+
+class SimulationError(PlantSimError):
+    """A simulation diverged or could not run; nothing was written from it."""
+
+
+class HardwareError(PlantSimError):
+    """The physical rig (servo, port) failed or stopped answering."""
