@@ -1,0 +1,296 @@
+"""Plant import: read a mesh file, check it, convert units and up axis, and place
+it on the turntable.
+
+The result records ``T_turntable_mesh``: the rigid 4x4 transform from the mesh
+file's coordinates (scaled to metres) to the turntable frame (origin on the
+axis at the disk top, +Z up; see :mod:`plantsim.rig`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import logging
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from plantsim.errors import MeshError
+from plantsim.transforms import apply_T, make_T, rot_x, rot_y
+
+log = logging.getLogger(__name__)
+
+UNITS_TO_M = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+MESH_FORMATS = (".stl", ".obj", ".ply")
+PLACEMENTS = ("base", "bbox", "none")
+
+# Rotations taking the file's up axis to +Z, right-handed (no mirroring).
+_R_UP = {"z": np.eye(3), "y": rot_x(math.pi / 2), "x": rot_y(-math.pi / 2)}
+
+# Plausible plant heights for the size check: a seedling to a tall maize.
+_PLAUSIBLE_HEIGHT_M = (0.01, 4.0)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PlantMesh:
+    """A plant mesh placed on the turntable.
+
+    Attributes:
+      vertices_mesh: (n, 3) float64, metres, the file's own axes (units applied).
+      faces: (m, 3) int32, indices into the vertices; degenerate faces removed.
+      T_turntable_mesh: (4, 4) float64, mesh frame (metres) -> turntable frame.
+      source: where it came from (a path, or a name for in-memory meshes).
+      units: units of the file ("m", "cm", "mm").
+      up: the file's up axis ("x", "y", "z").
+      n_faces_in_file: faces read before cleaning.
+      n_degenerate_dropped: faces dropped for repeated indices or zero area.
+    """
+
+    vertices_mesh: np.ndarray
+    faces: np.ndarray
+    T_turntable_mesh: np.ndarray
+    source: str = "<memory>"
+    units: str = "m"
+    up: str = "z"
+    n_faces_in_file: int = 0
+    n_degenerate_dropped: int = 0
+
+    @property
+    def vertices_turntable(self) -> np.ndarray:
+        """(n, 3) float64, metres, turntable frame."""
+        return apply_T(self.T_turntable_mesh, self.vertices_mesh)
+
+    @property
+    def n_faces(self) -> int:
+        return int(len(self.faces))
+
+    def bounds_turntable(self) -> np.ndarray:
+        """(2, 3) float64: min and max corner in the turntable frame."""
+        v = self.vertices_turntable
+        return np.stack([v.min(axis=0), v.max(axis=0)])
+
+    def summary(self) -> dict:
+        lo, hi = self.bounds_turntable()
+        return {
+            "source": self.source,
+            "units": self.units,
+            "up": self.up,
+            "n_vertices": int(len(self.vertices_mesh)),
+            "n_faces": self.n_faces,
+            "n_faces_in_file": self.n_faces_in_file,
+            "n_degenerate_dropped": self.n_degenerate_dropped,
+            "bounds_turntable_m": [lo.tolist(), hi.tolist()],
+            "T_turntable_mesh": self.T_turntable_mesh.tolist(),
+        }
+
+
+def _read_arrays(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Reads vertices and faces of an STL/OBJ/PLY file with trimesh."""
+    import trimesh  # Imported here: it is the slowest import on the CLI's path.
+
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise MeshError(f"cannot read mesh file {path}: {exc.strerror or exc}") from exc
+    if not data.strip():
+        raise MeshError(f"mesh file {path} is empty")
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type=path.suffix.lower()[1:], force="mesh",
+                            process=False)
+    except Exception as exc:  # trimesh raises many types on malformed files.
+        raise MeshError(f"cannot parse {path} as {path.suffix.lower()[1:].upper()}: {exc}") from exc
+    vertices = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64)
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+    return vertices, faces
+
+
+def clean_arrays(vertices: np.ndarray, faces: np.ndarray, *, source: str = "<memory>"
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Checks a triangle mesh and drops degenerate faces.
+
+    Vertices that are exact duplicates are merged (STL stores three per face);
+    faces with a repeated index or zero area are dropped and counted.
+
+    Args:
+      vertices: (n, 3) float, any units.
+      faces: (m, 3) int, vertex indices.
+      source: name used in error messages.
+
+    Returns:
+      vertices (k, 3) float64, faces (p, 3) int32, number of degenerate faces dropped.
+
+    Raises:
+      MeshError: no faces, non-finite vertices, out-of-range indices, or
+        nothing left after cleaning.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise MeshError(f"{source}: expected (n, 3) vertices and (m, 3) triangle faces, got "
+                        f"{vertices.shape} and {faces.shape}")
+    if len(faces) == 0 or len(vertices) == 0:
+        raise MeshError(f"{source}: the mesh has no triangles (is it a mesh file at all?)")
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise MeshError(f"{source}: {int(bad.sum())} of {len(vertices)} vertices are NaN or "
+                        f"infinite (first at index {int(np.flatnonzero(bad)[0])}); repair or "
+                        f"re-export the mesh")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise MeshError(f"{source}: face indices out of range 0..{len(vertices) - 1}")
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    faces = inverse.reshape(-1)[faces].astype(np.int64)
+    tri = unique[faces]
+    doubled_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    extent = float(np.ptp(unique, axis=0).max()) or 1.0
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    # Zero area relative to the mesh's size (float64 cross products of a
+    # sliver are ~1e-16 of extent^2 at worst).
+    degenerate = repeated | (doubled_area <= 1e-14 * extent * extent)
+    n_dropped = int(degenerate.sum())
+    faces = faces[~degenerate]
+    if len(faces) == 0:
+        raise MeshError(f"{source}: all {n_dropped} faces are degenerate (zero area)")
+    if n_dropped:
+        log.warning("%s: dropped %d degenerate faces of %d", source, n_dropped, n_dropped + len(faces))
+    used = np.unique(faces)
+    remap = np.full(len(unique), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return unique[used], remap[faces].astype(np.int32), n_dropped
+
+
+def placement_transform(vertices_up: np.ndarray, placement: str) -> np.ndarray:
+    """Translation putting an up-aligned mesh on the disk.
+
+    Args:
+      vertices_up: (n, 3) float64, metres, +Z up (file axes rotated).
+      placement: "base": the base (the lowest 2 % of the height, at least 1 mm)
+        centred on the axis and the lowest point on the disk top; "bbox": the
+        bounding box's XY centre on the axis, lowest point on the disk top;
+        "none": no translation.
+
+    Returns:
+      (3,) float64, metres.
+    """
+    if placement == "none":
+        return np.zeros(3)
+    z = vertices_up[:, 2]
+    z_min = z.min()
+    if placement == "base":
+        band = max(0.02 * (z.max() - z_min), 1e-3)
+        foot = vertices_up[z <= z_min + band, :2]
+    else:
+        foot = vertices_up[:, :2]
+    centre_xy = 0.5 * (foot.min(axis=0) + foot.max(axis=0))
+    return -np.array([centre_xy[0], centre_xy[1], z_min])
+
+
+def _check_size(height_m: float, units: str, source: str) -> None:
+    lo, hi = _PLAUSIBLE_HEIGHT_M
+    if lo <= height_m <= hi:
+        return
+    for other, scale in UNITS_TO_M.items():
+        if other != units and lo <= height_m / UNITS_TO_M[units] * scale <= hi:
+            hint = f"; did you mean units={other!r}?"
+            break
+    else:
+        hint = ""
+    log.warning("%s: the plant is %.4g m tall with units=%r, which looks off for a plant%s",
+                source, height_m, units, hint)
+
+
+def plant_from_arrays(vertices: np.ndarray, faces: np.ndarray, *, units: str = "m",
+                      up: str = "z", placement: str = "base",
+                      T_turntable_mesh: np.ndarray | None = None,
+                      source: str = "<memory>", n_faces_in_file: int | None = None) -> PlantMesh:
+    """Builds a :class:`PlantMesh` from arrays (see :func:`load_plant` for the options)."""
+    if units not in UNITS_TO_M:
+        raise ValueError(f"units must be one of {', '.join(UNITS_TO_M)}, got {units!r}")
+    if up not in _R_UP:
+        raise ValueError(f"up must be one of x, y, z, got {up!r}")
+    if placement not in PLACEMENTS:
+        raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, got {placement!r}")
+    n_in = len(faces) if n_faces_in_file is None else n_faces_in_file
+    vertices, faces, n_dropped = clean_arrays(vertices, faces, source=source)
+    vertices_m = vertices * UNITS_TO_M[units]
+    if T_turntable_mesh is None:
+        R = _R_UP[up]
+        vertices_up = vertices_m @ R.T
+        T = make_T(R, placement_transform(vertices_up, placement))
+        height = float(np.ptp(vertices_up[:, 2]))
+    else:
+        T = np.asarray(T_turntable_mesh, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise ValueError(f"T_turntable_mesh must be a finite 4x4 matrix, got shape {T.shape}")
+        R = T[:3, :3]
+        if not (np.allclose(R @ R.T, np.eye(3), atol=1e-9) and np.isclose(np.linalg.det(R), 1.0)
+                and np.allclose(T[3], [0, 0, 0, 1])):
+            raise ValueError("T_turntable_mesh must be rigid: a rotation (orthonormal, det +1) "
+                             "and a translation, last row [0, 0, 0, 1]")
+        height = float(np.ptp(apply_T(T, vertices_m)[:, 2]))
+    _check_size(height, units, source)
+    return PlantMesh(vertices_mesh=vertices_m, faces=faces, T_turntable_mesh=T, source=source,
+                     units=units, up=up, n_faces_in_file=int(n_in), n_degenerate_dropped=n_dropped)
+
+
+def load_plant(path: str | os.PathLike, *, units: str = "m", up: str = "z",
+               placement: str = "base", T_turntable_mesh: np.ndarray | None = None) -> PlantMesh:
+    """Reads a plant mesh (STL binary or ASCII, OBJ, PLY) and places it on the turntable.
+
+    Args:
+      path: the mesh file.
+      units: the file's length unit: "m", "cm" or "mm".
+      up: the file's up axis: "x", "y" or "z"; it becomes the turntable's +Z.
+      placement: "base" (default: the plant's base centred on the axis, resting
+        on the disk top), "bbox" (bounding box centred), or "none" (file
+        coordinates, after units and up axis, are turntable coordinates).
+      T_turntable_mesh: an explicit (4, 4) rigid placement (mesh metres ->
+        turntable); overrides ``up`` and ``placement``.
+
+    Returns:
+      The placed :class:`PlantMesh`.
+
+    Raises:
+      FileNotFoundError: no such file.
+      ValueError: an unknown format, unit, axis or placement.
+      MeshError: unreadable, empty or garbage content, NaN/inf vertices.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"mesh file not found: {path}")
+    if path.is_dir():
+        raise MeshError(f"mesh path is a folder, not a file: {path}")
+    if path.suffix.lower() not in MESH_FORMATS:
+        raise ValueError(f"unsupported mesh format {path.suffix or '(none)'!r} for {path}; "
+                         f"use one of {', '.join(MESH_FORMATS)}")
+    vertices, faces = _read_arrays(path)
+    return plant_from_arrays(vertices, faces, units=units, up=up, placement=placement,
+                             T_turntable_mesh=T_turntable_mesh, source=str(path))
+
+
+def shell_inertia(vertices: np.ndarray, faces: np.ndarray, *, areal_density_kg_m2: float
+                  ) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, centre of mass and inertia of a thin shell (leaves have no volume).
+
+    Each triangle is a uniform lamina; its second moment about the origin is
+    m/12 (a a^T + b b^T + c c^T + s s^T) with s = a + b + c.
+
+    Args:
+      vertices: (n, 3) float64, metres, any frame.
+      faces: (m, 3) int.
+      areal_density_kg_m2: mass per unit area.
+
+    Returns:
+      mass (kg), com (3,) metres, inertia (3, 3) kg m^2 about the com, same frame.
+    """
+    tri = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    m_tri = areal_density_kg_m2 * area
+    mass = float(m_tri.sum())
+    com = (m_tri[:, None] * tri.mean(axis=1)).sum(axis=0) / mass
+    t = tri - com
+    s = t.sum(axis=1)
+    second = (np.einsum("f,fki,fkj->ij", m_tri, t, t) + np.einsum("f,fi,fj->ij", m_tri, s, s)) / 12.0
+    inertia = np.trace(second) * np.eye(3) - second
+    return mass, com, inertia
