@@ -47,9 +47,9 @@ _DROOP_ATTEMPTS = 40
 _COLLAR_INSET = 0.9
 # The ear starts this far inside the top of its stem, so the two closed tubes overlap.
 _EAR_OVERLAP = 0.003  # m
-# Significant digits kept in the traits JSON: far below any physical meaning, far above
-# the last-bit differences between numpy's trig implementations on different CPUs.
-_JSON_DIGITS = 12
+# Significant digits kept in the traits JSON (about a nanometre on a plant): far below any
+# physical meaning, far above last-bit differences between numpy trig builds on other CPUs.
+_JSON_DIGITS = 9
 
 
 # --------------------------------------------------------------------------- validation
@@ -856,9 +856,9 @@ def _round_floats(value: Any) -> Any:
 
 
 def traits_to_json(plant: ProceduralPlant) -> str:
-    """The plant's traits as JSON text: indent 2, sorted keys, 12 significant digits.
+    """The plant's traits as JSON text: indent 2, sorted keys, 9 significant digits.
 
-    Rounding to 12 digits keeps the text identical across machines whose trig
+    Rounding to 9 digits keeps the text identical across machines whose trig
     functions differ in the last bit; it is far below any physical resolution.
     """
     return json.dumps(_round_floats(plant.traits), indent=2, sort_keys=True, allow_nan=False) + "\n"
