@@ -123,7 +123,10 @@ class LidarSpec:
 # Hokuyo URG-04LX-UG01, from the SCIP 2.0 "PP" parameters: DMIN 20 mm,
 # DMAX 5600 mm, ARES 1024 steps/turn, AMIN 44, AMAX 725, AFRT 384, SCAN 600 rpm
 # (../shared/notes/sensor-hokuyo-urg04lx.md). Beam 0 is step 44, i.e.
-# (44 - 384) x 360/1024 = -119.53 deg from the front; 683 beams reach +119.88 deg.
+# (44 - 384) x 360/1024 = -119.53 deg from the front. The notes give both
+# "AMIN 44 .. AMAX 725" (682 steps) and "682 intervals, 683 beams" (239.77 deg);
+# we keep the 683 beams the field of view and the benchmark name, so
+# the last beam is step 726 at +120.23 deg.
 URG_04LX_UG01 = LidarSpec(
     name="urg-04lx-ug01",
     n_beams=683,

@@ -1,0 +1,52 @@
+"""Shared in-memory fixtures: small meshes and a brute-force ray-triangle reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+
+def brute_force_first_hit(origin: np.ndarray, dirs: np.ndarray, vertices: np.ndarray,
+                          faces: np.ndarray) -> np.ndarray:
+    """Möller-Trumbore against every triangle: the obviously right reference.
+
+    Returns (n,) distances, inf for a miss.
+    """
+    a, b, c = vertices[faces[:, 0]], vertices[faces[:, 1]], vertices[faces[:, 2]]
+    e1, e2 = b - a, c - a
+    out = np.full(len(dirs), np.inf)
+    s = origin - a
+    q = np.cross(s, e1)
+    for k, d in enumerate(dirs):
+        p = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = np.abs(det) > 1e-18
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        u = np.einsum("ij,ij->i", s, p) * inv
+        v = (q @ d) * inv
+        t = np.einsum("ij,ij->i", q, e2) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)
+        if hit.any():
+            out[k] = t[hit].min()
+    return out
+
+
+def point_triangle_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Exact unsigned distance from each point to the nearest triangle (brute force)."""
+    tri = trimesh.Trimesh(vertices, faces, process=False)
+    from trimesh.triangles import closest_point
+
+    best = np.full(len(points), np.inf)
+    triangles = tri.triangles
+    for i, p in enumerate(points):
+        cp = closest_point(triangles, np.repeat(p[None], len(triangles), axis=0))
+        best[i] = np.linalg.norm(cp - p, axis=1).min()
+    return best
+
+
+@pytest.fixture
+def box_mesh():
+    """A 40 x 60 x 120 mm box mesh (exact planar faces), centred at the origin."""
+    m = trimesh.creation.box(extents=[0.04, 0.06, 0.12])
+    return np.asarray(m.vertices), np.asarray(m.faces)
