@@ -1,5 +1,16 @@
-"""plantsim: a MuJoCo simulator of a 2D-LiDAR + turntable plant-phenotyping scanner."""
+"""plantsim: a MuJoCo simulator of a 2D-LiDAR + turntable plant-phenotyping scanner.
 
+The public surface, in one place::
+
+    import plantsim
+    plant = plantsim.load_plant("plant.stl", units="mm", up="y")
+    scene = plantsim.build_scene(plantsim.RigGeometry(), plant)
+    raw = plantsim.step_and_shoot(scene, plantsim.URG_04LX_UG01, plantsim.StepScan(step_deg=1))
+    cloud = plantsim.reconstruct(raw)
+    plantsim.write_cloud("scan.las", cloud)
+"""
+
+from plantsim.config import OutputOptions, PlantOptions, RunConfig, config_from_dict, load_toml
 from plantsim.errors import (
     ConfigError,
     HardwareError,
@@ -8,5 +19,25 @@ from plantsim.errors import (
     SceneError,
     SimulationError,
 )
+from plantsim.io import CLASSIFICATION, EXPORTERS, read_cloud, write_cloud
+from plantsim.mesh import PlantMesh, load_plant, plant_from_arrays
+from plantsim.pipeline import ScanResult, run_scan, write_result
+from plantsim.procedural import (
+    PART_EAR,
+    PART_LEAF,
+    PART_STEM,
+    MaizeParams,
+    ProceduralPlant,
+    WheatParams,
+    make_maize,
+    make_wheat,
+)
+from plantsim.reconstruct import PointCloud, reconstruct
+from plantsim.resources import bundled_plant_path
+from plantsim.rig import RigGeometry
+from plantsim.scan import RawScan, RayCaster, StepScan, step_and_shoot
+from plantsim.scene import HitClass, Scene, build_scene
+from plantsim.sensor import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
+from plantsim.transforms import apply_T, invert_T, make_T
 
 __version__ = "0.1.0"

@@ -86,16 +86,44 @@ class PlantMesh:
         }
 
 
-def _read_arrays(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Reads vertices and faces of an STL/OBJ/PLY file with trimesh."""
-    import trimesh  # Imported here: it is the slowest import on the CLI's path.
+_STL_RECORD = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
 
+
+def binary_stl_arrays(data: bytes) -> tuple[np.ndarray, np.ndarray] | None:
+    """Vertices and faces of a binary STL, or None if ``data`` is not one.
+
+    A binary STL is an 80-byte header, a uint32 count and 50 bytes a triangle;
+    the exact size identifies it even when the header starts with "solid"
+    (as many CAD exporters write).
+    """
+    if len(data) < 84:
+        return None
+    n = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+    if len(data) != 84 + 50 * n:
+        return None
+    records = np.frombuffer(data, dtype=_STL_RECORD, count=n, offset=84)
+    vertices = records["vertices"].reshape(-1, 3).astype(np.float64)
+    return vertices, np.arange(3 * n, dtype=np.int64).reshape(-1, 3)
+
+
+def _read_arrays(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Reads vertices and faces of an STL/OBJ/PLY file.
+
+    Binary STL is read directly with numpy (importing trimesh costs ~0.6 s, a
+    third of a whole scan); everything else goes through trimesh.
+    """
     try:
         data = path.read_bytes()
     except OSError as exc:
         raise MeshError(f"cannot read mesh file {path}: {exc.strerror or exc}") from exc
     if not data.strip():
         raise MeshError(f"mesh file {path} is empty")
+    if path.suffix.lower() == ".stl":
+        arrays = binary_stl_arrays(data)
+        if arrays is not None:
+            return arrays
+    import trimesh  # Imported here: it is the slowest import on the CLI's path.
+
     try:
         mesh = trimesh.load(io.BytesIO(data), file_type=path.suffix.lower()[1:], force="mesh",
                             process=False)

@@ -41,16 +41,18 @@ class ScanResult:
 
 
 def library_versions() -> dict:
-    import laspy
-    import mujoco
-    import scipy
-    import trimesh
+    """Versions of plantsim and what it runs on (read from metadata: no slow imports)."""
+    from importlib import metadata
 
     from plantsim import __version__
 
-    return {"plantsim": __version__, "python": platform.python_version(), "mujoco": mujoco.__version__,
-            "numpy": np.__version__, "scipy": scipy.__version__, "trimesh": trimesh.__version__,
-            "laspy": laspy.__version__}
+    versions = {"plantsim": __version__, "python": platform.python_version()}
+    for name in ("mujoco", "numpy", "scipy", "trimesh", "laspy"):
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return versions
 
 
 def load_configured_plant(config: RunConfig) -> PlantMesh:

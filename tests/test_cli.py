@@ -1,0 +1,109 @@
+"""The command line: a small real scan, the sidecar, TOML options, and bad input.
+
+Bad input must exit non-zero with one clear line (no traceback) and leave no
+partial output behind.
+"""
+
+import json
+import subprocess
+import sys
+
+import laspy
+import numpy as np
+import pytest
+import trimesh
+
+from plantsim.cli import main
+
+
+@pytest.fixture
+def small_mesh(tmp_path):
+    box = trimesh.creation.box(extents=[0.03, 0.03, 0.2])
+    path = tmp_path / "stalk.stl"
+    path.write_bytes(box.export(file_type="stl"))
+    return path
+
+
+def run_cli(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "plantsim.cli", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_scan_writes_cloud_and_sidecar(tmp_path, small_mesh, capsys):
+    out = tmp_path / "out.las"
+    assert main(["scan", str(small_mesh), "-o", str(out), "--step-deg", "30", "--seed", "7"]) == 0
+    summary = capsys.readouterr().out
+    assert summary.startswith("wrote ") and str(out) in summary and summary.count("\n") == 1
+    las = laspy.read(out)
+    meta = json.loads((tmp_path / "out.las.json").read_text())
+    assert meta["counts"]["points_written"] == len(las.points)
+    assert meta["seed"] == 7 and meta["config"]["scan"]["step_deg"] == 30
+    assert np.array(meta["frames"]["T_turntable_mesh"]).shape == (4, 4)
+    assert {"mujoco", "numpy", "laspy", "plantsim"} <= set(meta["versions"])
+    assert {"load_mesh", "build_scene", "scan", "reconstruct", "encode"} <= set(meta["timings_s"])
+    assert meta["counts"]["beams"] == 12 * 683
+    assert meta["counts"]["returns"] + meta["counts"]["by_status"]["no_echo"] == 12 * 683
+
+
+def test_plant_only_and_other_formats(tmp_path, small_mesh):
+    for suffix in (".ply", ".pcd", ".xyz"):
+        out = tmp_path / f"p{suffix}"
+        assert main(["scan", str(small_mesh), "-o", str(out), "--step-deg", "60", "--plant-only"]) == 0
+        meta = json.loads((tmp_path / f"p{suffix}.json").read_text())
+        written = meta["counts"]["points_written_by_class"]
+        assert written["plant"] > 0 and written["rig"] == 0 and written["turntable"] == 0
+
+
+def test_toml_config_and_command_line_precedence(tmp_path, small_mesh):
+    (tmp_path / "scan.toml").write_text(
+        f'[plant]\nmesh = "{small_mesh.name}"\nunits = "m"\n'
+        '[scan]\nstep_deg = 45\n[rig]\nlidar_distance_m = 0.5\n'
+        '[lidar]\npreset = "urg-04lx-ug01"\nrange_max_m = 4.0\n[output]\npath = "from_toml.ply"\n')
+    assert main(["scan", "--config", str(tmp_path / "scan.toml"), "-o", str(tmp_path / "cli.las"),
+                 "--step-deg", "90"]) == 0
+    meta = json.loads((tmp_path / "cli.las.json").read_text())
+    assert meta["config"]["scan"]["step_deg"] == 90  # command line wins
+    assert meta["config"]["rig"]["lidar_distance_m"] == 0.5
+    assert meta["config"]["lidar"]["range_max_m"] == 4.0
+    assert meta["counts"]["beams"] == 4 * 683
+    assert not (tmp_path / "from_toml.ply").exists()
+
+
+BAD_CASES = {
+    "missing mesh": (["missing.stl"], "mesh file not found: missing.stl"),
+    "empty mesh": (["empty.stl"], "is empty"),
+    "garbage mesh": (["garbage.ply"], "cannot parse"),
+    "NaN vertices": (["nan.obj"], "NaN or infinite"),
+    "mesh is a folder": (["folder.stl"], "is a folder"),
+    "zero step": (["good.stl", "--step-deg", "0"], "step_deg must be > 0"),
+    "negative step": (["good.stl", "--step-deg", "-2"], "step_deg must be > 0"),
+    "infinite step": (["good.stl", "--step-deg", "inf"], "step_deg must be a finite number"),
+    "NaN step": (["good.stl", "--step-deg", "nan"], "step_deg must be a finite number"),
+    "uneven step": (["good.stl", "--step-deg", "7"], "must divide sweep_deg evenly"),
+    "min >= max range": (["good.stl", "--config", "ranges.toml"],
+                         "range_min_m must be less than range_max_m"),
+    "unknown config key": (["good.stl", "--config", "typo.toml"], "unknown key(s) stepdeg in [scan]"),
+    "missing output folder": (["good.stl", "-o", "nope/scan.las"], "output folder does not exist"),
+    "unknown output format": (["good.stl", "-o", "scan.e57"], "unknown point-cloud format"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_CASES))
+def test_bad_input_exits_with_one_clear_line_and_no_output(tmp_path, small_mesh, case):
+    (tmp_path / "good.stl").write_bytes(small_mesh.read_bytes())
+    (tmp_path / "empty.stl").write_bytes(b"")
+    (tmp_path / "garbage.ply").write_bytes(b"\x00\x01 not a ply")
+    (tmp_path / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
+    (tmp_path / "folder.stl").mkdir()
+    (tmp_path / "ranges.toml").write_text("[lidar]\nrange_min_m = 2.0\nrange_max_m = 1.0\n")
+    (tmp_path / "typo.toml").write_text("[scan]\nstepdeg = 2\n")
+    before = set(p.name for p in tmp_path.iterdir())
+    args, message = BAD_CASES[case]
+    result = run_cli("scan", *args, cwd=tmp_path)
+    assert result.returncode != 0
+    assert "Traceback" not in result.stderr
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("plantsim: error: "), result.stderr
+    assert message in lines[0]
+    assert set(p.name for p in tmp_path.iterdir()) == before  # nothing written, no temp files
+    assert not (tmp_path / "scan.las").exists()
