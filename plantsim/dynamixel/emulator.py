@@ -454,7 +454,8 @@ class DynamixelEmulator:
             delay_s = s.get("Return Delay Time") * 2e-6
             if delay_s > 0:
                 time.sleep(delay_s)
-            status = protocol.build_status(s.dxl_id, error | s.alert, params)
+            # The alert bit was taken when the instruction ran (a REBOOT clears it after).
+            status = protocol.build_status(s.dxl_id, error, params)
             if s.corrupt_count is None or s.corrupt_count > 0:
                 status = status[:-1] + bytes([status[-1] ^ 0x5A])
                 if s.corrupt_count:
@@ -476,7 +477,7 @@ class DynamixelEmulator:
         inst, params, dxl_id = packet.instruction, packet.params, packet.dxl_id
         broadcast = dxl_id == protocol.BROADCAST_ID
         if not packet.crc_ok:
-            return [(by_id[dxl_id], ErrorCode.CRC, b"")] if dxl_id in by_id else []
+            return [(by_id[dxl_id], ErrorCode.CRC | by_id[dxl_id].alert, b"")] if dxl_id in by_id else []
         if inst in (Instruction.SYNC_READ, Instruction.SYNC_WRITE, Instruction.BULK_READ,
                     Instruction.BULK_WRITE):
             return self._group(inst, params, by_id)
@@ -484,13 +485,14 @@ class DynamixelEmulator:
             [by_id[dxl_id]] if dxl_id in by_id else [])
         replies = []
         for s in targets:
+            status_level = s.get("Status Return Level")  # a write to it answers under the old level
             reply = self._single(s, inst, params)
             if reply is None:
                 continue
             error, out, level = reply
             # PING always answers; broadcast READ/WRITE never do.
-            if inst == Instruction.PING or (not broadcast and s.get("Status Return Level") >= level):
-                replies.append((s, error, out))
+            if inst == Instruction.PING or (not broadcast and status_level >= level):
+                replies.append((s, error | s.alert, out))
             self._after_reply(s, inst, params, error)
         return replies
 
@@ -555,7 +557,7 @@ class DynamixelEmulator:
                     s = by_id.get(dxl_id)
                     if s is not None and s.get("Status Return Level") >= 1:
                         error, data = s.read(address, length)
-                        replies.append((s, error, data))
+                        replies.append((s, error | s.alert, data))
             else:
                 stride = 1 + length
                 for k in range(0, len(body) - stride + 1, stride):
@@ -569,7 +571,7 @@ class DynamixelEmulator:
                 s = by_id.get(params[k])
                 if s is not None and s.get("Status Return Level") >= 1:
                     error, data = s.read(_u16(params, k + 1), _u16(params, k + 3))
-                    replies.append((s, error, data))
+                    replies.append((s, error | s.alert, data))
             return replies
         # BULK_WRITE: [id, address, length, data...] repeated.
         k = 0
