@@ -271,6 +271,23 @@ class Profile:
             return tuple(float(x) for x in out)
         return out
 
+    def sample_scalar(self, t: float) -> tuple[float, float, float]:
+        """:meth:`sample` for one float time, without NumPy overhead (the control loop)."""
+        t_rel = t - self.start_time
+        times = self.segment_times
+        if times.size == 0 or t_rel >= self.duration:
+            return self.goal, 0.0, 0.0
+        if t_rel < 0:
+            return float(self.segment_positions[0]), float(self.segment_velocities[0]), 0.0
+        index = 0
+        for k in range(1, times.size):
+            if times[k] <= t_rel:
+                index = k
+        tau = t_rel - times[index]
+        a = float(self.segment_accelerations[index])
+        v0 = float(self.segment_velocities[index])
+        return float(self.segment_positions[index]) + v0 * tau + 0.5 * a * tau * tau, v0 + a * tau, a
+
     def finished(self, t: float) -> bool:
         return t - self.start_time >= self.duration
 
@@ -456,7 +473,7 @@ class PositionController:
             self.duty = 0.0
             self.motor_torque = 0.0
             return 0.0
-        p_ref, v_ref, a_ref = self.profile.sample(t)
+        p_ref, v_ref, a_ref = self.profile.sample_scalar(t)
         error = p_ref - position
         unclamped = (
             c.position_p_gain * error

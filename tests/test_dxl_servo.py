@@ -173,3 +173,12 @@ def test_integral_anti_windup_under_stall():
     bound = shaft.controller.duty_limit / config.position_i_gain
     assert abs(shaft.controller.integral) <= bound + 1e-12
     assert abs(shaft.controller.motor_torque) <= 0.05 + 1e-12
+
+
+def test_scalar_sampling_matches_vector_sampling():
+    profile = servo.plan_profile(0.3, -2.0, start_velocity=1.0, max_velocity=2.0, max_acceleration=8.0,
+                                 start_time=1.0)
+    t = np.linspace(0.5, 3.5, 301)
+    expected = np.array(profile.sample(t)).T
+    actual = np.array([profile.sample_scalar(float(x)) for x in t])
+    np.testing.assert_allclose(actual, expected, atol=1e-12)

@@ -34,6 +34,10 @@ _CHECKLIST = (
 _POLL_ADDRESS, _POLL_LENGTH = 122, 14
 
 
+class _LostStatus(Exception):
+    """A status packet timed out or was corrupt (COMM_RX_TIMEOUT / COMM_RX_CORRUPT)."""
+
+
 def _sdk():
     try:
         import dynamixel_sdk
@@ -59,11 +63,17 @@ class DynamixelTurntable:
         allow_reboot: allow :meth:`reboot`, and let :meth:`move_to` reboot the servo
             once after a hardware shutdown (overload, ...) and retry. Off by default:
             a reboot re-enables torque, and a jammed plant or hand can be in the way.
+        retries: times to repeat a read or register write whose status packet was
+            missing or corrupt (each retry is logged as a warning). Reads and register
+            writes are idempotent; 0 surfaces every lost packet.
     """
 
-    def __init__(self, *, model: str = "xm430-w350", allow_reboot: bool = False):
+    def __init__(self, *, model: str = "xm430-w350", allow_reboot: bool = False, retries: int = 0):
+        if not isinstance(retries, int) or retries < 0:
+            raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
         self.table = ct.control_table(model)
         self.allow_reboot = allow_reboot
+        self.retries = retries
         self._lock = threading.Lock()
         self._port = None
         self._packet = None
@@ -148,8 +158,19 @@ class DynamixelTurntable:
 
     # --- low level --------------------------------------------------------------------
 
-    def _call(self, what: str, method: str, *args, check_alert: bool = False):
+    def _call(self, what: str, method: str, *args, check_alert: bool = False, retry: bool = True):
         """Runs one SDK call; returns its value(s) without the result/error codes."""
+        attempts = 1 + (self.retries if retry else 0)
+        for attempt in range(1, attempts + 1):
+            try:
+                return self._call_once(what, method, *args, check_alert=check_alert)
+            except _LostStatus as lost:
+                if attempt == attempts:
+                    raise ServoCommunicationError(str(lost)) from None
+                _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
+        raise AssertionError("unreachable")
+
+    def _call_once(self, what: str, method: str, *args, check_alert: bool):
         with self._lock:
             if self._port is None:
                 raise ServoCommunicationError(f"{what}: not connected; call connect() first")
@@ -169,7 +190,8 @@ class DynamixelTurntable:
         if result != 0:
             if result == -1000:  # COMM_PORT_BUSY: a previous call left the flag set
                 self._port.is_using = False
-            raise ServoCommunicationError(
+            error_class = _LostStatus if result in (-3001, -3002) else ServoCommunicationError
+            raise error_class(
                 f"{what} on {self.port_name} ID {self.dxl_id} at {self.baud_bps} bps failed: "
                 f"{self._packet.getTxRxResult(result)} {_CHECKLIST}"
             )
@@ -341,7 +363,7 @@ class DynamixelTurntable:
                 f"reboot of servo ID {self.dxl_id} refused: construct DynamixelTurntable(allow_reboot=True) "
                 "once the cause is removed (a reboot lets the turntable move again)"
             )
-        self._call("reboot", "reboot")
+        self._call("reboot", "reboot", retry=False)
         deadline = time.monotonic() + 2.0
         while True:  # the firmware needs a moment before it answers again
             try:

@@ -51,7 +51,7 @@ _INPUT_VOLTAGE_DV = 120  # 12.0 V
 _IN_POSITION_TICKS = 10
 # Physics steps per loop iteration at most, so the port is served at least every
 # few hundred microseconds even when the simulation runs behind.
-_MAX_STEPS_PER_ITERATION = 50
+_MAX_STEPS_PER_ITERATION = 10
 
 
 def _termios_bauds() -> dict[int, int]:
@@ -412,7 +412,20 @@ class DynamixelEmulator:
         lagging = False
         try:
             while not self._stop.is_set() and not self._disconnect.is_set():
-                readable, _, _ = select.select([self._master], [], [], 0.0005)
+                target = sim_start + (time.perf_counter() - wall_start) * self.speed_factor
+                with self._lock:
+                    timestep = self._servos[0].shaft.timestep
+                    steps = int((target - self._sim_time) / timestep)
+                    if steps > 100 * _MAX_STEPS_PER_ITERATION and not lagging:
+                        _log.warning("emulator runs slower than speed_factor=%s", self.speed_factor)
+                        lagging = True
+                    steps = min(steps, _MAX_STEPS_PER_ITERATION)
+                    if steps > 0:
+                        self._sim_time += steps * timestep
+                        for s in self._servos:
+                            s.advance(self._sim_time)
+                # Serve the port between short physics chunks; sleep in select when idle.
+                readable, _, _ = select.select([self._master], [], [], 0.0 if steps > 0 else 0.0005)
                 if readable:
                     try:
                         data = os.read(self._master, 4096)
@@ -423,19 +436,6 @@ class DynamixelEmulator:
                     if data:
                         for packet in self._parser.feed(data):
                             self._serve(packet)
-                target = sim_start + (time.perf_counter() - wall_start) * self.speed_factor
-                with self._lock:
-                    timestep = self._servos[0].shaft.timestep
-                    steps = int((target - self._sim_time) / timestep)
-                    if steps > _MAX_STEPS_PER_ITERATION:
-                        if not lagging and steps > 100 * _MAX_STEPS_PER_ITERATION:
-                            _log.warning("emulator runs slower than speed_factor=%s", self.speed_factor)
-                            lagging = True
-                        steps = _MAX_STEPS_PER_ITERATION
-                    if steps > 0:
-                        self._sim_time += steps * timestep
-                        for s in self._servos:
-                            s.advance(self._sim_time)
         except Exception:  # the thread must not die silently: log, then close the port
             _log.exception("Dynamixel emulator on %s crashed", self.port_path)
         finally:
