@@ -15,7 +15,12 @@ To drive another hinge (e.g. the turntable in the full scene) with the same serv
 give the hinge ``config.joint_attributes()`` and a ``<motor>`` with
 ``forcerange=±config.torque_limit``, then each step::
 
-    data.ctrl[actuator_id] = controller.torque(data.time, data.qpos[q], data.qvel[v])
+    controller = PositionController(config)
+    controller.enable(data.time, data.qpos[q])
+    controller.set_goal(data.time, goal_rad)
+    # every step:
+    data.ctrl[actuator_id] = controller.torque(data.time, data.qpos[q], data.qvel[v], model.opt.timestep)
+    mujoco.mj_step(model, data)
 
 Motor model (ROBOTIS gives only stall torque and no-load speed at 12 V): the firmware's
 PID output is a PWM duty d in [-1, 1]; a DC motor then gives the output shaft torque

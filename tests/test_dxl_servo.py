@@ -182,3 +182,35 @@ def test_scalar_sampling_matches_vector_sampling():
     expected = np.array(profile.sample(t)).T
     actual = np.array([profile.sample_scalar(float(x)) for x in t])
     np.testing.assert_allclose(actual, expected, atol=1e-12)
+
+
+def test_controller_drives_a_hinge_in_another_scene():
+    """The reuse path for the full scene: the controller on someone else's hinge."""
+    import mujoco
+
+    config = tuned_config()
+    joint = " ".join(f'{k}="{v}"' for k, v in config.joint_attributes().items())
+    xml = f"""
+    <mujoco>
+      <compiler angle="radian" autolimits="true"/>
+      <option timestep="0.002" integrator="implicitfast"/>
+      <worldbody>
+        <body name="turntable">
+          <joint name="turntable" type="hinge" axis="0 0 1" {joint}/>
+          <geom type="cylinder" size="0.15 0.01" mass="1.5"/>
+        </body>
+      </worldbody>
+      <actuator>
+        <motor joint="turntable" forcerange="-{config.torque_limit} {config.torque_limit}"/>
+      </actuator>
+    </mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    controller = servo.PositionController(config)
+    controller.enable(data.time, data.qpos[0])
+    profile = controller.set_goal(data.time, math.pi / 3)
+    while data.time < profile.duration + 0.5:
+        data.ctrl[0] = controller.torque(data.time, data.qpos[0], data.qvel[0], model.opt.timestep)
+        mujoco.mj_step(model, data)
+    assert data.qpos[0] == pytest.approx(math.pi / 3, abs=3 * units.RAD_PER_TICK)
+    assert not data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number

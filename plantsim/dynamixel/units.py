@@ -16,7 +16,7 @@ Conventions:
 * Acceleration: 1/4096 tick per ms^2 = 214.577 rpm^2 (exact).
 * Current: 2.69 mA per unit. PWM: 885 units = 100 % duty (0.113 % per unit).
 
-Every function accepts a Python scalar or a NumPy array and returns the same
+The unit conversions accept a Python scalar or a NumPy array and return the same
 kind. Conversions to raw integers round to the nearest unit and raise
 ``ValueError`` for non-finite input; nothing is clipped or wrapped silently.
 """
