@@ -143,6 +143,8 @@ def test_overload_refused_without_permission(emulator, turntable):
     with pytest.raises(ServoAlarmError, match="overload error.*allow_reboot=True") as caught:
         turntable.move_to(1.0, timeout_s=2)
     assert caught.value.hardware_error_status == OVERLOAD
+    with pytest.raises(ServoAlarmError, match="overload error"):
+        turntable.torque_on()  # refused by the servo; reported as the shutdown it is
     with pytest.raises(HardwareError, match="reboot of servo ID 1 refused"):
         turntable.reboot()
 

@@ -271,3 +271,10 @@ def test_bad_crc_instruction_gets_crc_error(emulator, port):
         received += port.readPort(64)
     status = protocol.parse_packet(received)
     assert status.error == protocol.ErrorCode.CRC
+
+
+def test_broadcast_ping_and_broadcast_write(port, ph):
+    found, result = ph.broadcastPing(port)
+    assert result == COMM_SUCCESS and found == {1: [1020, 46], 2: [1020, 46]}
+    assert ph.write1ByteTxOnly(port, 254, 65, 1) == COMM_SUCCESS  # no status expected
+    assert ph.read1ByteTxRx(port, 1, 65)[0] == 1 and ph.read1ByteTxRx(port, 2, 65)[0] == 1

@@ -195,14 +195,16 @@ class DynamixelTurntable:
                 f"{what} on {self.port_name} ID {self.dxl_id} at {self.baud_bps} bps failed: "
                 f"{self._packet.getTxRxResult(result)} {_CHECKLIST}"
             )
+        if error & protocol.ERROR_ALERT_BIT and check_alert:
+            # The shutdown is the cause worth reporting, even when the instruction
+            # was refused because of it (torque on during a shutdown).
+            self._raise_alarm(what)
         code = error & 0x7F
         if code:
             raise ServoCommunicationError(
-                f"{what} on {self.port_name} ID {self.dxl_id} refused: {self._packet.getRxPacketError(error)} "
+                f"{what} on {self.port_name} ID {self.dxl_id} refused: {self._packet.getRxPacketError(code)} "
                 f"({protocol.describe_error(code)})"
             )
-        if error & protocol.ERROR_ALERT_BIT and check_alert:
-            self._raise_alarm(what)
         return value
 
     def _raise_alarm(self, what: str) -> None:
