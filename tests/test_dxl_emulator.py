@@ -278,3 +278,10 @@ def test_broadcast_ping_and_broadcast_write(port, ph):
     assert result == COMM_SUCCESS and found == {1: [1020, 46], 2: [1020, 46]}
     assert ph.write1ByteTxOnly(port, 254, 65, 1) == COMM_SUCCESS  # no status expected
     assert ph.read1ByteTxRx(port, 1, 65)[0] == 1 and ph.read1ByteTxRx(port, 2, 65)[0] == 1
+
+
+def test_stuffed_values_round_trip_through_the_sdk(port, ph):
+    value = -131073  # little endian FF FF FD FF: stuffed on the way in and on the way out
+    assert units.to_unsigned(value, 4).to_bytes(4, "little") == b"\xff\xff\xfd\xff"
+    assert ph.write4ByteTxRx(port, 1, 20, units.to_unsigned(value, 4)) == (COMM_SUCCESS, 0)
+    assert units.to_signed(ph.read4ByteTxRx(port, 1, 20)[0], 4) == value
