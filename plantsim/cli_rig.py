@@ -19,8 +19,6 @@ import threading
 
 from plantsim.dynamixel import control_table as ct
 
-_log = logging.getLogger(__name__)
-
 _BAUDS = sorted(b for b in ct.BAUD_RATES_BPS.values() if b != 4_500_000)
 
 

@@ -31,7 +31,6 @@ PID output is a PWM duty d in [-1, 1]; a DC motor then gives the output shaft to
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 from typing import Mapping
 
@@ -39,8 +38,7 @@ import mujoco
 import numpy as np
 
 from plantsim.dynamixel import units
-
-_log = logging.getLogger(__name__)
+from plantsim.errors import SimulationError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -591,8 +589,6 @@ class ShaftSim:
             data.ctrl[0] = controller.torque(data.time, data.qpos[0], data.qvel[0], self.timestep)
             mujoco.mj_step(model, data)
         if not (math.isfinite(data.qpos[0]) and math.isfinite(data.qvel[0])):
-            from plantsim.errors import SimulationError
-
             raise SimulationError(
                 f"servo shaft diverged at t={data.time:.3f} s; reduce timestep ({self.timestep}) or the gains"
             )

@@ -16,7 +16,15 @@ every status while Hardware Error Status is set, with torque off until REBOOT.
 Deviations, on purpose: unicast ACTION gets no status (the SDK does not read it and a
 late one would be taken for the next reply); only the position modes (3, 4, 5) are
 simulated, other modes leave the shaft free; CLEAR and the FAST_* reads answer with an
-instruction error; temperature and input voltage are constant.
+instruction error; temperature and input voltage are constant; Drive Mode (reverse,
+time-based profile), Bus Watchdog and the Velocity Limit cap on the profile are not
+emulated; REBOOT is instantaneous.
+
+Timing: the SDK waits about 34 ms for a status. The emulator answers in about 1 ms,
+but on a machine loaded by other processes a status can occasionally miss that
+window, as on a noisy bus; :class:`~plantsim.dynamixel.driver.DynamixelTurntable`'s
+``retries`` covers it. Run the emulator in its own process (``plantsim emulator``)
+for the most faithful timing.
 
 Usage::
 
