@@ -148,7 +148,7 @@ def test_overload_refused_without_permission(emulator, turntable):
         turntable.reboot()
 
 
-def test_overload_mid_move_recovers_by_reboot_when_allowed(emulator):
+def test_overload_mid_move_recovers_by_reboot_when_allowed(emulator, caplog):
     with make_turntable(emulator, allow_reboot=True) as turntable:
         turntable.configure(CONFIG)
         turntable.torque_on()
@@ -156,6 +156,7 @@ def test_overload_mid_move_recovers_by_reboot_when_allowed(emulator):
         timer.start()
         final = turntable.move_to(3.0, timeout_s=5, tolerance_rad=4 * units.RAD_PER_TICK)
         timer.join()
+        assert "shut down during a move; rebooting" in caplog.text
         assert final == pytest.approx(3.0, abs=4 * units.RAD_PER_TICK)
         assert turntable.hardware_error_status() == 0
         # The configuration survived the reboot (RAM is reset by the firmware).
