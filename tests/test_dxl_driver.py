@@ -118,7 +118,7 @@ def test_move_times_out_with_position_in_message(emulator, turntable):
 
 
 def test_no_reply_and_corrupt_crc_become_hardware_errors(emulator, turntable):
-    emulator.inject_no_reply(1)
+    emulator.inject_no_reply(1, count=None)
     with pytest.raises(ServoCommunicationError, match=r"read Present Position on /dev/pts/\d+ ID 1 .*no status"):
         turntable.position()
     emulator.clear_faults()

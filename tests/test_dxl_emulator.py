@@ -258,6 +258,15 @@ def test_injected_faults(emulator, port, ph, plain_ph):
     assert ph.read1ByteTxRx(port, 1, 70) == (0, COMM_SUCCESS, 0)
 
 
+def test_fault_injection_validates(emulator):
+    with pytest.raises(ValueError, match="count must be an integer >= 1"):
+        emulator.inject_no_reply(1, count=0)
+    with pytest.raises(ValueError, match="bits must be a non-zero Hardware Error Status byte"):
+        emulator.inject_hardware_error(1, 0)
+    with pytest.raises(KeyError, match="no servo with ID 9"):
+        emulator.inject_corrupt_crc(9)
+
+
 def test_bad_crc_instruction_gets_crc_error(emulator, port):
     from plantsim.dynamixel import protocol
 

@@ -381,18 +381,22 @@ class DynamixelEmulator:
     def sim_time(self) -> float:
         return self._sim_time
 
-    def inject_no_reply(self, dxl_id: int, *, count: int | None = None) -> None:
+    def inject_no_reply(self, dxl_id: int, *, count: int | None = 1) -> None:
         """The servo ignores the next ``count`` packets (None: until cleared), as if unplugged."""
+        _check_count(count)
         with self._lock:
             self.servo(dxl_id).silent_count = count
 
     def inject_corrupt_crc(self, dxl_id: int, *, count: int | None = 1) -> None:
-        """The servo's next ``count`` status packets carry a wrong CRC."""
+        """The servo's next ``count`` status packets carry a wrong CRC (None: until cleared)."""
+        _check_count(count)
         with self._lock:
             self.servo(dxl_id).corrupt_count = count
 
     def inject_hardware_error(self, dxl_id: int, bits: int = OVERLOAD) -> None:
         """Sets Hardware Error Status ``bits`` (default overload): torque off until REBOOT."""
+        if not (isinstance(bits, int) and 0 < bits <= 0xFF):
+            raise ValueError(f"bits must be a non-zero Hardware Error Status byte (e.g. OVERLOAD = 0x20), got {bits!r}")
         with self._lock:
             self.servo(dxl_id).fault(bits)
 
@@ -592,6 +596,11 @@ class DynamixelEmulator:
                 s.write(address, data)
             k += 5 + length
         return []
+
+
+def _check_count(count) -> None:
+    if count is not None and not (isinstance(count, int) and count >= 1):
+        raise ValueError(f"count must be an integer >= 1, or None for until clear_faults(), got {count!r}")
 
 
 def _u16(data: bytes, offset: int) -> int:
