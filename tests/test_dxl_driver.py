@@ -178,3 +178,12 @@ def test_disconnect_mid_move_releases_the_port(emulator, turntable):
     with DynamixelEmulator() as other:
         turntable.connect(other.port_path)
         assert turntable.ping() == 1020
+
+
+def test_driver_arguments_are_validated():
+    with pytest.raises(ValueError, match="retries must be an integer >= 0"):
+        DynamixelTurntable(retries=-1)
+    with pytest.raises(ValueError, match="model must be one of"):
+        DynamixelTurntable(model="ax-12a")
+    with pytest.raises(ValueError, match=r"dxl_id must be in \[0, 252\]"):
+        DynamixelTurntable().connect("/dev/null", dxl_id=300)

@@ -294,3 +294,14 @@ def test_stuffed_values_round_trip_through_the_sdk(port, ph):
     assert units.to_unsigned(value, 4).to_bytes(4, "little") == b"\xff\xff\xfd\xff"
     assert ph.write4ByteTxRx(port, 1, 20, units.to_unsigned(value, 4)) == (COMM_SUCCESS, 0)
     assert units.to_signed(ph.read4ByteTxRx(port, 1, 20)[0], 4) == value
+
+
+def test_emulator_arguments_are_validated():
+    with pytest.raises(ValueError, match=r"ids must be distinct integers in \[0, 252\]"):
+        DynamixelEmulator(ids=(1, 1))
+    with pytest.raises(ValueError, match="speed_factor must be finite and > 0"):
+        DynamixelEmulator(speed_factor=0)
+    with pytest.raises(ValueError, match="baud_bps must be one of"):
+        DynamixelEmulator(baud_bps=12345)
+    with pytest.raises(ValueError, match="model must be one of"):
+        DynamixelEmulator(model="ax-12a")
