@@ -161,6 +161,7 @@ def test_factory_gains_settle_without_overshoot_or_nan():
     shaft.set_goal(1.0)  # a step: factory profile is unlimited
     shaft.run_until(1.5)
     assert math.isfinite(shaft.position)
+    assert not any(w.number for w in shaft.data.warning)
     assert shaft.position == pytest.approx(1.0, abs=3 * units.RAD_PER_TICK)
 
 
