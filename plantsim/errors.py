@@ -27,3 +27,19 @@ class SimulationError(PlantSimError):
 
 class HardwareError(PlantSimError):
     """The physical rig (servo, port) failed or stopped answering."""
+
+
+class ServoCommunicationError(HardwareError):
+    """A servo did not answer, answered garbage, or the port failed or vanished."""
+
+
+class ServoAlarmError(HardwareError):
+    """A servo reported a hardware error (overload, overheating, ...) and dropped torque.
+
+    Attributes:
+        hardware_error_status: the Hardware Error Status register value.
+    """
+
+    def __init__(self, message: str, hardware_error_status: int = 0):
+        super().__init__(message)
+        self.hardware_error_status = hardware_error_status

@@ -1,0 +1,50 @@
+"""The rig commands: the emulator in its own process, pinged through the CLI."""
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from plantsim import cli_rig
+
+
+def parser():
+    top = argparse.ArgumentParser(prog="plantsim")
+    hook = cli_rig.add_rig_commands(top.add_subparsers(dest="command", required=True))
+    return top, hook
+
+
+def test_commands_are_registered_and_rig_has_a_hook():
+    top, hook = parser()
+    args = top.parse_args(["emulator", "--id", "1", "--id", "3", "--baud", "1000000"])
+    assert args.func is cli_rig.run_emulator and args.ids == [1, 3] and args.baud_bps == 1_000_000
+    scan = hook.add_parser("scan")
+    scan.set_defaults(func=lambda a: 0)
+    assert top.parse_args(["rig", "scan"]).rig_command == "scan"
+    with pytest.raises(SystemExit):
+        top.parse_args(["rig", "ping", "--port", "x", "--baud", "12345"])
+
+
+def test_emulator_process_and_rig_ping(capsys):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    process = subprocess.Popen(
+        [sys.executable, "-m", "plantsim.cli_rig", "emulator", "--id", "4"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+    )
+    try:
+        port_path = process.stdout.readline().strip()
+        assert port_path.startswith("/dev/")
+        top, _ = parser()
+        args = top.parse_args(["rig", "ping", "--port", port_path, "--id", "4"])
+        assert args.func(args) == 0
+        out = capsys.readouterr().out
+        assert "model: XM430-W350 (1020)" in out and "firmware: 46" in out and "position: 0.0000 rad" in out
+        args = top.parse_args(["rig", "ping", "--port", port_path, "--id", "5"])
+        assert args.func(args) == 1
+        assert "error: ping on" in capsys.readouterr().err
+    finally:
+        process.send_signal(signal.SIGINT)
+        assert process.wait(timeout=10) == 0

@@ -1,0 +1,189 @@
+"""DynamixelTurntable over the real dynamixel_sdk, against the emulator."""
+
+import math
+import threading
+
+import pytest
+
+from plantsim import servo
+from plantsim.dynamixel import units
+from plantsim.dynamixel.driver import DynamixelTurntable
+from plantsim.dynamixel.emulator import OVERLOAD, DynamixelEmulator
+from plantsim.errors import HardwareError, ServoAlarmError, ServoCommunicationError
+
+CONFIG = servo.ServoConfig(
+    position_p_gain=3200 / units.P_GAIN_DIVISOR * units.SI_PER_KP,
+    position_i_gain=2000 / units.I_GAIN_DIVISOR * units.SI_PER_KI,
+    velocity_feedforward_gain=0.26,
+    profile_velocity=2.0,
+    profile_acceleration=10.0,
+)
+
+
+@pytest.fixture
+def emulator():
+    with DynamixelEmulator(ids=(1,), speed_factor=10.0, load_inertia=0.002) as emu:
+        yield emu
+
+
+def make_turntable(emulator, **options):
+    # Retries keep these tests stable on a loaded machine, where a status packet can
+    # miss the SDK's ~34 ms timeout; the fault tests inject more faults than that.
+    turntable = DynamixelTurntable(retries=2, **options)
+    turntable.connect(emulator.port_path, baud_bps=57_600, dxl_id=1)
+    return turntable
+
+
+@pytest.fixture
+def turntable(emulator):
+    with make_turntable(emulator) as table:
+        yield table
+
+
+def test_connect_verifies_model_and_reads_firmware(turntable):
+    assert turntable.ping() == 1020
+    assert turntable.firmware_version == 46
+    assert turntable.temperature() == 30.0
+    assert turntable.hardware_error_status() == 0
+
+
+def test_connect_refuses_another_model():
+    with DynamixelEmulator(model="xl430-w250") as emu:
+        with pytest.raises(ServoCommunicationError, match=r"model 1060 \(XL430-W250; pass model='xl430-w250'\)"):
+            DynamixelTurntable().connect(emu.port_path)
+        with DynamixelTurntable(model="xl430-w250") as table:
+            table.connect(emu.port_path)
+            with pytest.raises(HardwareError, match="has no current sensor"):
+                table.current()
+
+
+def test_wrong_baud_or_id_gives_actionable_error(emulator):
+    with pytest.raises(ServoCommunicationError, match=r"There is no status packet.*baud rate and ID match"):
+        DynamixelTurntable().connect(emulator.port_path, baud_bps=1_000_000)
+    with pytest.raises(ServoCommunicationError, match=r"ID 5 at 57600 bps failed"):
+        DynamixelTurntable().connect(emulator.port_path, dxl_id=5)
+    with pytest.raises(ValueError, match="baud_bps must be one of"):
+        DynamixelTurntable().connect(emulator.port_path, baud_bps=12345)
+    with pytest.raises(ServoCommunicationError, match="cannot open /nonexistent"):
+        DynamixelTurntable().connect("/nonexistent")
+
+
+def test_configure_writes_registers_in_raw_units(turntable):
+    turntable.configure(CONFIG)
+    registers = CONFIG.to_registers()
+    assert turntable.read_register("Position P Gain") == registers["Position P Gain"] == 3200
+    assert turntable.read_register("Profile Velocity") == registers["Profile Velocity"]
+    assert turntable.read_register("Operating Mode") == 3
+
+
+def test_signed_registers_through_the_driver(turntable):
+    turntable.write_register("Homing Offset", -2048)
+    assert turntable.read_register("Homing Offset") == -2048
+    assert turntable.position() == pytest.approx(-math.pi)
+
+
+def test_eeprom_write_refused_while_torque_on(turntable):
+    turntable.torque_on()
+    with pytest.raises(ServoCommunicationError, match="EEPROM while torque is on"):
+        turntable.write_register("Operating Mode", 4)
+    turntable.torque_off()
+    turntable.write_register("Operating Mode", 4)
+
+
+def test_move_to_reaches_goal_and_reads_state(turntable):
+    turntable.configure(CONFIG)
+    turntable.torque_on()
+    final = turntable.move_to(math.pi / 2, timeout_s=5, tolerance_rad=4 * units.RAD_PER_TICK)
+    assert final == pytest.approx(math.pi / 2, abs=4 * units.RAD_PER_TICK)
+    assert turntable.position() == pytest.approx(math.pi / 2, abs=4 * units.RAD_PER_TICK)
+    assert abs(turntable.velocity()) < units.velocity_units_to_rad_s(10)  # Moving Threshold
+    assert abs(turntable.current()) < 0.5
+
+
+def test_move_to_validates_goal_and_torque(turntable):
+    with pytest.raises(HardwareError, match="torque off; call torque_on"):
+        turntable.move_to(1.0)
+    turntable.torque_on()
+    with pytest.raises(ValueError, match=r"angle_rad must be within the position limits \[0.0000, 6.2817\]"):
+        turntable.move_to(-0.5)
+    with pytest.raises(ValueError, match="angle_rad must be finite"):
+        turntable.move_to(math.nan)
+
+
+def test_move_times_out_with_position_in_message(emulator, turntable):
+    turntable.configure(servo.ServoConfig(profile_velocity=0.5, profile_acceleration=5.0))
+    turntable.torque_on()
+    with pytest.raises(ServoCommunicationError, match=r"did not reach 3.1416 rad within 0.05 s \(at"):
+        turntable.move_to(math.pi, timeout_s=0.05)
+
+
+def test_no_reply_and_corrupt_crc_become_hardware_errors(emulator, turntable):
+    emulator.inject_no_reply(1, count=None)
+    with pytest.raises(ServoCommunicationError, match=r"read Present Position on /dev/pts/\d+ ID 1 .*no status"):
+        turntable.position()
+    emulator.clear_faults()
+    emulator.inject_corrupt_crc(1, count=None)
+    with pytest.raises(ServoCommunicationError, match="Incorrect status packet"):
+        turntable.position()
+    emulator.clear_faults()
+    assert turntable.ping() == 1020  # the port is usable afterwards
+
+
+def test_retries_hide_one_lost_status_and_log_it(emulator, turntable, caplog):
+    emulator.inject_no_reply(1, count=1)
+    assert turntable.read_register("Model Number") == 1020
+    assert "no status packet" in caplog.text and "attempt 1 of 3" in caplog.text
+
+
+def test_overload_refused_without_permission(emulator, turntable):
+    turntable.configure(CONFIG)
+    turntable.torque_on()
+    emulator.inject_hardware_error(1, OVERLOAD)
+    with pytest.raises(ServoAlarmError, match="overload error.*allow_reboot=True") as caught:
+        turntable.move_to(1.0, timeout_s=2)
+    assert caught.value.hardware_error_status == OVERLOAD
+    with pytest.raises(ServoAlarmError, match="overload error"):
+        turntable.torque_on()  # refused by the servo; reported as the shutdown it is
+    with pytest.raises(HardwareError, match="reboot of servo ID 1 refused"):
+        turntable.reboot()
+
+
+def test_overload_mid_move_recovers_by_reboot_when_allowed(emulator, caplog):
+    with make_turntable(emulator, allow_reboot=True) as turntable:
+        turntable.configure(CONFIG)
+        turntable.torque_on()
+        timer = threading.Timer(0.03, emulator.inject_hardware_error, args=(1, OVERLOAD))
+        timer.start()
+        final = turntable.move_to(3.0, timeout_s=5, tolerance_rad=4 * units.RAD_PER_TICK)
+        timer.join()
+        assert "shut down during a move; rebooting" in caplog.text
+        assert final == pytest.approx(3.0, abs=4 * units.RAD_PER_TICK)
+        assert turntable.hardware_error_status() == 0
+        # The configuration survived the reboot (RAM is reset by the firmware).
+        assert turntable.read_register("Position P Gain") == 3200
+
+
+def test_disconnect_mid_move_releases_the_port(emulator, turntable):
+    turntable.configure(CONFIG)
+    turntable.torque_on()
+    timer = threading.Timer(0.03, emulator.disconnect)
+    timer.start()
+    with pytest.raises(ServoCommunicationError, match="the port failed.*connect\\(\\) again"):
+        turntable.move_to(6.0, timeout_s=5)
+    timer.join()
+    assert not turntable.connected
+    with pytest.raises(ServoCommunicationError, match="not connected; call connect"):
+        turntable.position()
+    # A new bus on a new pty: the same object connects again.
+    with DynamixelEmulator() as other:
+        turntable.connect(other.port_path)
+        assert turntable.ping() == 1020
+
+
+def test_driver_arguments_are_validated():
+    with pytest.raises(ValueError, match="retries must be an integer >= 0"):
+        DynamixelTurntable(retries=-1)
+    with pytest.raises(ValueError, match="model must be one of"):
+        DynamixelTurntable(model="ax-12a")
+    with pytest.raises(ValueError, match=r"dxl_id must be in \[0, 252\]"):
+        DynamixelTurntable().connect("/dev/null", dxl_id=300)
