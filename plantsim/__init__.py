@@ -17,6 +17,8 @@ from plantsim.errors import (
     MeshError,
     PlantSimError,
     SceneError,
+    ServoAlarmError,
+    ServoCommunicationError,
     SimulationError,
 )
 from plantsim.io import CLASSIFICATION, EXPORTERS, read_cloud, write_cloud
@@ -37,6 +39,7 @@ from plantsim.resources import bundled_plant_path
 from plantsim.rig import RigGeometry
 from plantsim.scan import RawScan, RayCaster, StepScan, step_and_shoot
 from plantsim.scene import HitClass, Scene, build_scene
+from plantsim.servo import PositionController, ServoConfig, ShaftSim, plan_profile
 from plantsim.sensor import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
 from plantsim.transforms import apply_T, invert_T, make_T
 

@@ -102,6 +102,10 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
     scan.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
     scan.set_defaults(func=cmd_scan)
+
+    from plantsim.cli_rig import add_rig_commands
+
+    add_rig_commands(sub)
     return parser
 
 
