@@ -164,7 +164,9 @@ def test_height_bands_see_the_missing_top():
     h = np.arange(0, 0.5 + 1e-9, 0.002)
     xx, zz = np.meshgrid(g, h, indexing="ij")
     cloud = np.column_stack([xx.ravel(), np.zeros(xx.size), zz.ravel()])
-    m = metrics.cloud_mesh_metrics(cloud, v, f, coverage_distance=0.003, band_height=0.25, rng=0)
+    m = metrics.cloud_mesh_metrics(
+        cloud, v, f, coverage_distance=0.003, band_height=0.25, n_surface_samples=50_000, rng=0
+    )
     assert len(m.bands) == 4
     cov = [b.coverage for b in m.bands]
     assert cov[0] == 1.0 and cov[1] > 0.98 and cov[2] < 0.02 and cov[3] == 0.0
