@@ -111,15 +111,20 @@ def closest_point_on_triangles(
     """
     ab = b - a
     ac = c - a
+    return _closest_point(points, a, ab, ac, _dot(ab, ab), _dot(ab, ac), _dot(ac, ac))
+
+
+def _closest_point(points, a, ab, ac, g_bb, g_bc, g_cc) -> np.ndarray:
+    """Ericson's closest point from corner ``a``, edges ``ab``, ``ac`` and their Gram
+    terms ``ab.ab``, ``ab.ac``, ``ac.ac`` (precomputed once per triangle): his six
+    dot products reduce to two per pair, since ``bp = ap - ab`` and ``cp = ap - ac``."""
     ap = points - a
     d1 = _dot(ab, ap)
     d2 = _dot(ac, ap)
-    bp = points - b
-    d3 = _dot(ab, bp)
-    d4 = _dot(ac, bp)
-    cp = points - c
-    d5 = _dot(ab, cp)
-    d6 = _dot(ac, cp)
+    d3 = d1 - g_bb
+    d4 = d2 - g_bc
+    d5 = d1 - g_bc
+    d6 = d2 - g_cc
     va = d3 * d6 - d5 * d4
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
@@ -131,35 +136,36 @@ def closest_point_on_triangles(
         # Edge BC.
         m = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
         t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        v = np.where(m, 1.0 - t, v)
-        w = np.where(m, t, w)
+        np.copyto(v, 1.0 - t, where=m)
+        np.copyto(w, t, where=m)
         # Edge AC.
         m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
         t = d2 / (d2 - d6)
-        v = np.where(m, 0.0, v)
-        w = np.where(m, t, w)
+        np.copyto(v, 0.0, where=m)
+        np.copyto(w, t, where=m)
         # Vertex C.
         m = (d6 >= 0) & (d5 <= d6)
-        v = np.where(m, 0.0, v)
-        w = np.where(m, 1.0, w)
+        np.copyto(v, 0.0, where=m)
+        np.copyto(w, 1.0, where=m)
         # Edge AB.
         m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
         t = d1 / (d1 - d3)
-        v = np.where(m, t, v)
-        w = np.where(m, 0.0, w)
+        np.copyto(v, t, where=m)
+        np.copyto(w, 0.0, where=m)
         # Vertex B.
         m = (d3 >= 0) & (d4 <= d3)
-        v = np.where(m, 1.0, v)
-        w = np.where(m, 0.0, w)
+        np.copyto(v, 1.0, where=m)
+        np.copyto(w, 0.0, where=m)
         # Vertex A.
         m = (d1 <= 0) & (d2 <= 0)
-        v = np.where(m, 0.0, v)
-        w = np.where(m, 0.0, w)
+        np.copyto(v, 0.0, where=m)
+        np.copyto(w, 0.0, where=m)
 
     closest = a + ab * v[:, None] + ac * w[:, None]
     bad = ~np.isfinite(closest).all(axis=1)
     if bad.any():
-        closest[bad] = _closest_on_edges(points[bad], a[bad], b[bad], c[bad])
+        a_bad = a[bad]
+        closest[bad] = _closest_on_edges(points[bad], a_bad, a_bad + ab[bad], a_bad + ac[bad])
     return closest
 
 
@@ -222,8 +228,11 @@ class MeshProximity:
         self.vertices, self.faces = _as_mesh(vertices, faces)
         tri = self.vertices[self.faces]
         self._a = np.ascontiguousarray(tri[:, 0])
-        self._b = np.ascontiguousarray(tri[:, 1])
-        self._c = np.ascontiguousarray(tri[:, 2])
+        self._ab = np.ascontiguousarray(tri[:, 1] - tri[:, 0])
+        self._ac = np.ascontiguousarray(tri[:, 2] - tri[:, 0])
+        self._g_bb = _dot(self._ab, self._ab)
+        self._g_bc = _dot(self._ab, self._ac)
+        self._g_cc = _dot(self._ac, self._ac)
         centroid = tri.mean(axis=1)
         radius = np.sqrt(((tri - centroid[:, None]) ** 2).sum(axis=2)).max(axis=1)
         positive = radius[radius > 0]
@@ -248,7 +257,7 @@ class MeshProximity:
         return int(self.faces.shape[0])
 
     def query(
-        self, points: Any, *, k: int = 6, chunk_size: int = 100_000, workers: int = -1
+        self, points: Any, *, k: int = 8, chunk_size: int = 100_000, workers: int = -1
     ) -> ClosestPoints:
         """Exact unsigned distance of each point to the nearest triangle.
 
@@ -304,17 +313,18 @@ class MeshProximity:
                 # that no triangle of this level can beat the current best.
                 d1, _ = tree.query(pts, k=1, workers=workers)
                 todo = np.flatnonzero(d1 - r_max < np.sqrt(best_sq))
-            k = min(k0, m)
+            k_done, k = 0, min(k0, m)
             while todo.size:
                 dk, jk = tree.query(pts[todo], k=k, workers=workers)
                 dk = dk.reshape(todo.size, k)
                 jk = jk.reshape(todo.size, k)
-                self._test_pairs(pts, todo, ids[jk], best_sq, best_tri, best_pt)
+                # The first k_done candidates were tested in the previous round.
+                self._test_pairs(pts, todo, ids[jk[:, k_done:]], best_sq, best_tri, best_pt)
                 if k >= m:
                     break
                 unresolved = dk[:, -1] - r_max < np.sqrt(best_sq[todo])
                 todo = todo[unresolved]
-                k = min(2 * k, m)
+                k_done, k = k, min(2 * k, m)
 
     def _test_pairs(self, pts, rows, tri_ids, best_sq, best_tri, best_pt) -> None:
         """Test points ``rows`` against their candidate triangles ``tri_ids`` (len(rows), k)."""
@@ -324,7 +334,9 @@ class MeshProximity:
             r = rows[s : s + step]
             t = tri_ids[s : s + step].ravel()
             p = np.repeat(pts[r], kk, axis=0)
-            q = closest_point_on_triangles(p, self._a[t], self._b[t], self._c[t])
+            q = _closest_point(
+                p, self._a[t], self._ab[t], self._ac[t], self._g_bb[t], self._g_bc[t], self._g_cc[t]
+            )
             d2 = ((q - p) ** 2).sum(axis=1).reshape(r.size, kk)
             j = np.argmin(d2, axis=1)
             dmin = d2[np.arange(r.size), j]
@@ -337,7 +349,7 @@ class MeshProximity:
 
 
 def point_to_mesh_distance(
-    points: Any, vertices: Any, faces: Any, *, k: int = 6, chunk_size: int = 100_000
+    points: Any, vertices: Any, faces: Any, *, k: int = 8, chunk_size: int = 100_000
 ) -> ClosestPoints:
     """Exact unsigned distance of every point to a triangle mesh.
 
