@@ -321,3 +321,20 @@ def test_a_diverging_setup_writes_nothing(box_file, tmp_path, capsys):
     assert main(["scan", str(box_file), "--config", str(config), "-o", str(out)]) == 2
     assert "too stiff for the timestep" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("case, outcome, match", [
+    (dict(gain_factor=1e4, timestep_s=1e-2, integrator="euler"), "refused", "use timestep_s <="),
+    (dict(gain_factor=1e-3, timestep_s=1e-3), "stopped", "could not follow"),
+    (dict(rev_per_s=10.0), "error", "exceeds the servo's no-load speed"),
+    (dict(gain_factor=1e2, timestep_s=1e-4, integrator="rk4"), "ok", ""),
+    (dict(load_inertia_kg_m2=1e-8, timestep_s=1e-2, integrator="euler"), "ok", ""),
+])
+def test_stability_matrix_subset(case, outcome, match):
+    from plantsim.stability import run_case
+
+    out = run_case(duration_s=0.3, **case)
+    assert out.outcome == outcome, out.message
+    assert match in out.message
+    if outcome == "ok":
+        assert out.max_tracking_error_rad < 0.2
