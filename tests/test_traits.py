@@ -1,0 +1,283 @@
+"""plantsim.traits on clouds whose traits are known by construction."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from plantsim import metrics, traits
+
+
+def _cylinder_cloud(rng, center_xy, radius, height, n, noise_m=0.0, z0=0.0):
+    theta = rng.uniform(0, 2 * np.pi, n)
+    z = rng.uniform(z0, z0 + height, n)
+    p = np.column_stack(
+        [center_xy[0] + radius * np.cos(theta), center_xy[1] + radius * np.sin(theta), z]
+    )
+    return p + rng.normal(size=p.shape) * noise_m
+
+
+def _strip(rng, length, width, n, origin=(0.0, 0.0, 0.0), direction=(1.0, 0.0, 0.0)):
+    """Flat rectangle: ``length`` along ``direction`` (horizontal), ``width`` across, in z-plane."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    across = np.cross([0.0, 0.0, 1.0], d)
+    u = rng.uniform(0, length, n)
+    v = rng.uniform(-width / 2, width / 2, n)
+    return np.asarray(origin) + u[:, None] * d + v[:, None] * across
+
+
+# --------------------------------------------------------------------------
+# height
+# --------------------------------------------------------------------------
+def test_height_is_the_top_above_the_base_or_a_percentile():
+    z = np.linspace(0.1, 0.6, 1001)
+    pts = np.column_stack([np.zeros_like(z), np.zeros_like(z), z])
+    assert traits.plant_height(pts, base_z=0.1) == pytest.approx(0.5)
+    assert traits.plant_height(pts) == pytest.approx(0.6)
+    assert traits.plant_height(pts, percentile=50) == pytest.approx(0.35)
+    with pytest.raises(ValueError, match=r"percentile must be in \(0, 100\], got 0"):
+        traits.plant_height(pts, percentile=0)
+
+
+# --------------------------------------------------------------------------
+# circles and stems
+# --------------------------------------------------------------------------
+def test_circle_fit_is_exact_on_a_circle_and_survives_a_half_arc():
+    theta = np.linspace(0, 2 * np.pi, 50, endpoint=False)
+    xy = np.column_stack([0.3 + 0.006 * np.cos(theta), -0.2 + 0.006 * np.sin(theta)])
+    fit = traits.fit_circle(xy)
+    assert fit.center_xy == pytest.approx((0.3, -0.2), abs=1e-12)
+    assert fit.radius == pytest.approx(0.006, rel=1e-9)
+    rng = np.random.default_rng(0)
+    half = np.linspace(0, np.pi, 200)
+    arc = np.column_stack([0.006 * np.cos(half), 0.006 * np.sin(half)])
+    arc += rng.normal(size=arc.shape) * 0.0001
+    assert traits.fit_circle(arc).radius == pytest.approx(0.006, rel=0.03)
+    with pytest.raises(ValueError, match=r"a circle needs at least 3 points, got 2"):
+        traits.fit_circle(xy[:2])
+
+
+def test_stem_diameter_of_a_sampled_cylinder_exact_without_noise():
+    rng = np.random.default_rng(1)
+    pts = _cylinder_cloud(rng, (0.01, -0.02), 0.002, 0.5, 20_000)
+    (stem,) = traits.estimate_stems(pts)
+    assert stem.diameter_m == pytest.approx(0.004, rel=1e-9)
+    assert stem.center_xy_m == pytest.approx((0.01, -0.02), abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_stem_diameter_of_a_noisy_cylinder_within_five_percent(seed):
+    # 0.2 mm Gaussian noise on a 4 mm wheat stem, about 400 points in the slice:
+    # the geometric fit stays within 5 % (0.2 mm) of the diameter.
+    rng = np.random.default_rng(seed)
+    pts = _cylinder_cloud(rng, (0.0, 0.0), 0.002, 0.5, 20_000, noise_m=0.0002)
+    (stem,) = traits.estimate_stems(pts)
+    assert stem.diameter_m == pytest.approx(0.004, rel=0.05)
+    assert stem.rms_residual_m == pytest.approx(0.0002, rel=0.3)
+
+
+def test_two_and_three_stems_give_their_centre_distances():
+    rng = np.random.default_rng(2)
+    centres = [(0.0, 0.0), (0.042, 0.0), (0.02, 0.03)]
+    pts = np.vstack([_cylinder_cloud(rng, c, 0.002, 0.4, 10_000) for c in centres])
+    two = traits.extract_traits(pts[:20_000])
+    assert len(two.stems) == 2
+    assert two.mean_stem_distance_m == pytest.approx(0.042, abs=1e-9)
+    assert two.stem_diameter_m == pytest.approx(0.004, rel=1e-6)
+    three = traits.extract_traits(pts)
+    c = np.array(centres)
+    d = {(i, j): np.linalg.norm(c[i] - c[j]) for i in range(3) for j in range(i + 1, 3)}
+    assert len(three.stems) == 3 and len(three.stem_distances) == 3
+    assert three.mean_stem_distance_m == pytest.approx(np.mean(list(d.values())), abs=1e-9)
+    nearest = [min(v for k, v in d.items() if i in k) for i in range(3)]
+    assert three.mean_nearest_stem_distance_m == pytest.approx(np.mean(nearest), abs=1e-9)
+    got = sorted(p.distance_m for p in three.stem_distances)
+    assert got == pytest.approx(sorted(d.values()), abs=1e-9)
+
+
+# --------------------------------------------------------------------------
+# leaves
+# --------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", range(3))
+def test_a_flat_strip_leaf_gives_its_length_and_width(seed):
+    rng = np.random.default_rng(seed)
+    pts = _strip(rng, 0.3, 0.02, 5_000, origin=(0.0, 0.0, 0.2), direction=(1.0, 1.0, 0.0))
+    length, width = traits.leaf_length_width(pts, link_distance=0.006, bin_length=0.01)
+    assert length == pytest.approx(0.3, rel=0.02)
+    assert width == pytest.approx(0.02, rel=0.02)
+
+
+def test_a_curled_leaf_is_measured_along_its_surface():
+    rng = np.random.default_rng(4)
+    u = rng.uniform(0, 0.3, 5_000)
+    v = rng.uniform(-0.01, 0.01, 5_000)
+    radius = 0.1  # bent through 172 degrees: the chord is far shorter than the leaf
+    pts = np.column_stack([radius * np.sin(u / radius), v, 0.1 + radius * (1 - np.cos(u / radius))])
+    length, width = traits.leaf_length_width(pts, link_distance=0.006, bin_length=0.01)
+    assert length == pytest.approx(0.3, rel=0.02)
+    assert width == pytest.approx(0.02, rel=0.02)
+
+
+def test_a_stem_with_two_leaves_is_taken_apart():
+    rng = np.random.default_rng(5)
+    r = 0.006
+    stem = _cylinder_cloud(rng, (0.0, 0.0), r, 0.4, 30_000)
+    leaf_a = _strip(rng, 0.25, 0.018, 6_000, origin=(r, 0.0, 0.15), direction=(1.0, 0.0, 0.0))
+    leaf_b = _strip(rng, 0.20, 0.030, 6_000, origin=(-r, 0.0, 0.30), direction=(-1.0, 0.2, 0.0))
+    pts = np.vstack([stem, leaf_a, leaf_b])
+    t = traits.extract_traits(pts)
+    assert len(t.stems) == 1
+    assert t.stems[0].diameter_m == pytest.approx(2 * r, rel=1e-6)
+    assert len(t.leaves) == 2
+    by_width = sorted(t.leaves, key=lambda lf: lf.width_m)
+    # The removed stem cylinder takes stem_removal_margin (3 mm) off each leaf's base.
+    assert by_width[0].length_m == pytest.approx(0.25 - 0.003, abs=0.005)
+    assert by_width[0].width_m == pytest.approx(0.018, rel=0.03)
+    assert by_width[1].length_m == pytest.approx(0.20 - 0.003, abs=0.005)
+    assert by_width[1].width_m == pytest.approx(0.030, rel=0.03)
+    assert t.leaf_width_m == by_width[1].width_m
+    assert t.height_m == pytest.approx(0.4, abs=1e-3)
+
+
+# --------------------------------------------------------------------------
+# volume and area
+# --------------------------------------------------------------------------
+def test_convex_hull_volume_of_a_sampled_box():
+    box = trimesh.creation.box(extents=(0.1, 0.2, 0.3))
+    v = np.asarray(box.vertices) + [0.0, 0.0, 0.15]
+    samples, _ = metrics.sample_surface(v, box.faces, 5_000, rng=0)
+    pts = np.vstack([samples, v])  # the corners make the hull exact
+    assert traits.convex_hull_volume(pts) == pytest.approx(0.006, rel=1e-9)
+    assert traits.convex_hull_volume(samples) == pytest.approx(0.006, rel=0.05)
+    assert math.isnan(traits.convex_hull_volume(np.zeros((3, 3))))
+    flat = np.column_stack([np.random.default_rng(0).random((10, 2)), np.zeros(10)])
+    assert math.isnan(traits.convex_hull_volume(flat))
+
+
+def test_projected_area_of_a_filled_square():
+    g = np.arange(0.0005, 0.1, 0.001)
+    xx, yy = np.meshgrid(g, g)
+    pts = np.column_stack([xx.ravel(), yy.ravel(), np.full(xx.size, 0.2)])
+    assert traits.projected_area_xy(pts, cell=0.005) == pytest.approx(0.01, rel=1e-9)
+    with pytest.raises(ValueError, match=r"cell must be > 0 metres, got 0"):
+        traits.projected_area_xy(pts, cell=0)
+
+
+# --------------------------------------------------------------------------
+# truth and errors
+# --------------------------------------------------------------------------
+def _truth():
+    return {
+        "height_m": 0.555,
+        "stem_diameter_m": 0.004,
+        "stems": [
+            {"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 0.004, "height_m": 0.55,
+             "top_xyz_m": [0.0, 0.0, 0.55]},
+            {"index": 1, "base_xy_m": [0.042, 0.0], "diameter_m": 0.004, "height_m": 0.5,
+             "top_xyz_m": [0.04, 0.0, 0.5]},
+        ],
+        "stem_distances_m": [{"stems": [0, 1], "distance_m": 0.042}],
+        "mean_stem_distance_m": 0.042,
+        "leaves": [
+            {"index": 0, "stem": 0, "insertion_height_m": 0.1, "length_m": 0.2, "width_m": 0.008,
+             "area_m2": 0.0012},
+            {"index": 1, "stem": 1, "insertion_height_m": 0.15, "length_m": 0.25, "width_m": 0.01,
+             "area_m2": 0.0018},
+        ],
+        "leaf_width_m": 0.01,
+        "leaf_length_m": 0.25,
+        "leaf_area_m2": 0.003,
+    }
+
+
+def test_traits_from_truth_reads_the_schema():
+    t = traits.traits_from_truth(_truth())
+    assert t.height_m == 0.555
+    assert [s.center_xy_m for s in t.stems] == [(0.0, 0.0), (0.042, 0.0)]
+    assert t.stem_diameter_m == pytest.approx(0.004)
+    assert t.mean_stem_distance_m == pytest.approx(0.042)
+    assert t.leaf_width_m == 0.01 and t.leaf_length_m == 0.25
+    assert len(t.leaves) == 2
+    assert math.isnan(t.convex_hull_volume_m3)
+    assert json.loads(json.dumps(t.to_dict()))["height_m"] == 0.555
+
+
+def test_traits_from_truth_validation():
+    bad = _truth()
+    del bad["height_m"]
+    with pytest.raises(ValueError, match=r"truth lacks 'height_m'; keys present: \['leaf_area_m2'"):
+        traits.traits_from_truth(bad)
+    bad = _truth()
+    bad["leaves"][1]["width_m"] = "wide"
+    with pytest.raises(ValueError, match=r"truth\['leaves'\]\[1\]\['width_m'\] must be a number, got 'wide'"):
+        traits.traits_from_truth(bad)
+    with pytest.raises(ValueError, match=r"truth must be a dict parsed from the traits JSON, got list"):
+        traits.traits_from_truth([])
+
+
+def test_errors_are_absolute_and_relative_as_in_the_paper():
+    # The paper's Table I, wheat at 1 degree: stem diameter S = 5.00 mm against R = 4.00 mm.
+    e = traits.trait_error("stem_diameter_m", 0.005, 0.004)
+    assert e.absolute_error == pytest.approx(0.001)
+    assert e.relative_error == pytest.approx(0.25)
+    assert traits.trait_error("height_m", 0.442, 0.555).relative_error == pytest.approx(0.2036, abs=1e-4)
+    assert math.isnan(traits.trait_error("offset", 0.001, 0.0).relative_error)
+
+
+def test_compare_a_scan_against_the_truth():
+    rng = np.random.default_rng(6)
+    pts = np.vstack([
+        _cylinder_cloud(rng, (0.0005, 0.0), 0.0025, 0.5, 10_000),
+        _cylinder_cloud(rng, (0.047, 0.0), 0.0025, 0.45, 10_000),
+    ])
+    estimate = traits.extract_traits(pts)
+    c = traits.compare_traits(estimate, traits.traits_from_truth(_truth()))
+    assert c["height_m"].estimate == pytest.approx(0.5, abs=1e-3)
+    assert c["height_m"].relative_error == pytest.approx(abs(0.5 - 0.555) / 0.555, abs=2e-3)
+    assert c["stem_diameter_m"].relative_error == pytest.approx(0.25, rel=1e-6)
+    assert c["mean_stem_distance_m"].absolute_error == pytest.approx(0.0045, abs=1e-9)
+    assert c["stem[1].center_offset_m"].absolute_error == pytest.approx(0.005, abs=1e-9)
+    assert c["stem[0].diameter_m"].relative_error == pytest.approx(0.25, rel=1e-6)
+    assert c.n_stems == (2, 2) and c.n_leaves == (0, 2)
+    with pytest.raises(KeyError, match="no error for 'leaf_area_m2'"):
+        c["leaf_area_m2"]
+    d = c.to_dict()
+    assert json.loads(json.dumps(d)) == d
+
+
+def test_traits_from_mesh_of_a_cylinder():
+    cyl = trimesh.creation.cylinder(radius=0.006, height=0.4, sections=64)
+    v = np.asarray(cyl.vertices) + [0.0, 0.0, 0.2]
+    t = traits.traits_from_mesh(v, cyl.faces, n_samples=50_000, rng=0)
+    assert t.height_m == pytest.approx(0.4, abs=1e-12)
+    # A 64-gon reads a hair smaller than its circumscribed circle.
+    assert t.stem_diameter_m == pytest.approx(0.012, rel=0.005)
+    assert t.convex_hull_volume_m3 == pytest.approx(cyl.volume * (0.4 - 0.005) / 0.4, rel=0.02)
+
+
+# --------------------------------------------------------------------------
+# validation
+# --------------------------------------------------------------------------
+def test_settings_and_cloud_validation():
+    with pytest.raises(ValueError, match=r"stem_slice_thickness must be a finite number > 0 metres, got 0"):
+        traits.TraitSettings(stem_slice_thickness=0)
+    with pytest.raises(ValueError, match=r"height_percentile must be in \(0, 100\], got 101"):
+        traits.TraitSettings(height_percentile=101)
+    with pytest.raises(ValueError, match=r"leaf_min_points must be an int >= 3, got 2"):
+        traits.TraitSettings(leaf_min_points=2)
+    with pytest.raises(TypeError):
+        traits.TraitSettings(0.0)  # keyword-only
+    with pytest.raises(ValueError, match=r"points_turntable is empty \(shape \(0, 3\)\)"):
+        traits.extract_traits(np.zeros((0, 3)))
+    with pytest.raises(ValueError, match=r"points_turntable holds 1 non-finite rows"):
+        traits.extract_traits(np.array([[0.0, 0.0, np.nan], [0.0, 0.0, 0.1]]))
+
+
+def test_a_cloud_with_no_stem_in_the_slice_gives_nan_not_zero():
+    rng = np.random.default_rng(7)
+    pts = _strip(rng, 0.2, 0.02, 2_000, origin=(0.0, 0.0, 0.3))
+    t = traits.extract_traits(pts)
+    assert t.stems == () and math.isnan(t.stem_diameter_m) and math.isnan(t.mean_stem_distance_m)
+    assert len(t.leaves) == 1
