@@ -25,7 +25,7 @@ import mujoco.batch
 import numpy as np
 
 from plantsim import encoder as encoder_mod
-from plantsim.dynamics import JitterConfig, TurntableDynamics, TurntableSim, DynamicScene
+from plantsim.dynamics import DynamicScene, JitterConfig, Trajectory, TurntableDynamics, TurntableSim
 from plantsim.encoder import EncoderConfig, EncoderReadings
 from plantsim.scan import Progress, RawScan, StepScan, gate_ranges, ray_origins_dirs_base
 from plantsim.scene import Scene
@@ -168,7 +168,7 @@ class DynamicScanResult:
     """
 
     raw: RawScan
-    trajectory: object
+    trajectory: Trajectory
     readings: EncoderReadings
     commanded_rad: np.ndarray
 
@@ -214,6 +214,7 @@ def dynamic_step_and_shoot(dscene: DynamicScene, lidar: LidarSpec, schedule: Ste
     ``settle_tolerance_rad`` of the goal and slower than
     ``settle_velocity_rad_s``, like the servo's Moving flag). The table may
     still creep during the line; every beam is cast at its own true angle.
+    ``schedule.step_time_s`` is not used: the physics decides each step's time.
 
     Raises:
       SimulationError: if a step does not settle within ``settle_timeout_s``,
