@@ -460,6 +460,5 @@ class TurntableSim:
 
     def trajectory(self) -> Trajectory:
         rec = np.concatenate(self._records)
-        rec[0, 4] = rec[min(1, len(rec) - 1), 4] if len(rec) > 1 else 0.0
         return Trajectory(time_s=rec[:, 0].copy(), table_rad=rec[:, 1].copy(), shaft_rad=rec[:, 2].copy(),
                           shaft_velocity_rad_s=rec[:, 3].copy(), setpoint_rad=rec[:, 4].copy())

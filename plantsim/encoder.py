@@ -28,6 +28,8 @@ class EncoderConfig:
       eccentricity_rad: amplitude of the once-per-turn error, radians
         (error = ``eccentricity_rad * sin(theta + eccentricity_phase_rad)``).
       eccentricity_phase_rad: its phase, radians.
+      drift_rad_per_s: the offset's slow drift (e.g. thermal), radians per
+        second of scan time.
       latency_s: age of a reading when the host stamps it, s.
       read_rate_hz: readings per second.
     """
@@ -37,6 +39,7 @@ class EncoderConfig:
     offset_rad: float = 0.0
     eccentricity_rad: float = 0.0
     eccentricity_phase_rad: float = 0.0
+    drift_rad_per_s: float = 0.0
     latency_s: float = 0.0
     read_rate_hz: float = 100.0
 
@@ -45,7 +48,7 @@ class EncoderConfig:
         if t is not None and (isinstance(t, bool) or not isinstance(t, int) or t < 2):
             raise ValueError(f"encoder ticks_per_rev must be an integer >= 2 or None (exact), got {t!r}")
         for name in ("noise_rad", "offset_rad", "eccentricity_rad", "eccentricity_phase_rad",
-                     "latency_s", "read_rate_hz"):
+                     "drift_rad_per_s", "latency_s", "read_rate_hz"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"encoder {name} must be a finite number, got {value!r}")
@@ -64,19 +67,23 @@ class EncoderConfig:
         return dataclasses.replace(self, **changes)
 
 
-def measure(angle_true_rad: np.ndarray, config: EncoderConfig, rng: np.random.Generator) -> np.ndarray:
+def measure(angle_true_rad: np.ndarray, config: EncoderConfig, rng: np.random.Generator, *,
+            time_s: np.ndarray | None = None) -> np.ndarray:
     """What the encoder reports for true shaft angles (no sampling or latency).
 
     Args:
       angle_true_rad: (n,) float64, unwrapped shaft angle, radians.
       config: the encoder.
       rng: source of the noise (drawn only when ``noise_rad`` > 0).
+      time_s: (n,) float64, when each was measured (for the drift; None = 0).
 
     Returns:
       (n,) float64, radians; whole ticks when ``ticks_per_rev`` is set.
     """
     theta = np.asarray(angle_true_rad, dtype=np.float64)
     reading = theta + config.offset_rad
+    if config.drift_rad_per_s and time_s is not None:
+        reading = reading + config.drift_rad_per_s * np.asarray(time_s, dtype=np.float64)
     if config.eccentricity_rad:
         reading = reading + config.eccentricity_rad * np.sin(theta + config.eccentricity_phase_rad)
     if config.noise_rad:
@@ -122,5 +129,6 @@ def read(time_s: np.ndarray, shaft_rad: np.ndarray, config: EncoderConfig, rng: 
     t_end = float(time_s[-1]) if t_end_s is None else float(t_end_s)
     n = int(math.floor(t_end * config.read_rate_hz + 1e-9)) + 1
     t_read = np.arange(n) / config.read_rate_hz
-    shaft_then = np.interp(t_read - config.latency_s, time_s, shaft_rad)
-    return EncoderReadings(time_s=t_read, angle_rad=measure(shaft_then, config, rng))
+    t_then = t_read - config.latency_s
+    shaft_then = np.interp(t_then, time_s, shaft_rad)
+    return EncoderReadings(time_s=t_read, angle_rad=measure(shaft_then, config, rng, time_s=t_then))

@@ -155,12 +155,13 @@ def test_encoder_offset_eccentricity_latency():
     t = np.linspace(0, 10, 10_001)
     omega = 0.5
     config = EncoderConfig(ticks_per_rev=None, offset_rad=0.01, eccentricity_rad=0.002,
-                           latency_s=0.02, read_rate_hz=50)
+                           latency_s=0.02, read_rate_hz=50, drift_rad_per_s=1e-4)
     readings = read(t, omega * t, config, rng)
     assert readings.time_s[1] == pytest.approx(0.02)
     late = readings.time_s > 1
     true_then = omega * (readings.time_s[late] - 0.02)
-    expected = true_then + 0.01 + 0.002 * np.sin(true_then)
+    expected = (true_then + 0.01 + 0.002 * np.sin(true_then)
+                + 1e-4 * (readings.time_s[late] - 0.02))
     assert readings.angle_rad[late] == pytest.approx(expected, abs=1e-9)
 
 
