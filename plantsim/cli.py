@@ -20,6 +20,8 @@ def _scan_overrides(args: argparse.Namespace) -> dict:
         ("scan", "step_deg"): args.step_deg, ("scan", "sweep_deg"): args.sweep_deg,
         ("output", "path"): args.output, ("output", "plant_only"): args.plant_only or None,
         ("seed",): args.seed, ("ideal",): args.ideal or None, ("threads",): args.threads,
+        ("turntable", "mode"): args.mode, ("turntable", "rpm"): args.rpm,
+        ("turntable", "deskew"): False if args.no_deskew else None,
     }
     out: dict = {}
     for key, value in pairs.items():
@@ -101,6 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--ideal", action="store_true", help="turn off every imperfection")
     scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
     scan.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
+    scan.add_argument("--mode", choices=["step", "continuous"],
+                      help="step: move, settle, scan a line; continuous: the table turns while the "
+                           "LiDAR scans (default step)")
+    scan.add_argument("--rpm", type=float, help="continuous mode's turntable speed, rpm (default 1)")
+    scan.add_argument("--no-deskew", action="store_true",
+                      help="reconstruct with one angle per line, as a naive rig does")
     scan.set_defaults(func=cmd_scan)
 
     from plantsim.cli_rig import add_rig_commands

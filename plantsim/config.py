@@ -1,7 +1,7 @@
 """A scan's whole configuration: plant, sensor, rig, schedule, output.
 
 Every option can come from a TOML file (sections ``[plant]``, ``[lidar]``,
-``[rig]``, ``[scan]``, ``[output]``) and from the command line, which wins.
+``[rig]``, ``[scan]``, ``[output]``, ``[turntable]``) and from the command line, which wins.
 The resolved configuration goes into every output's sidecar JSON.
 """
 
@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from plantsim.dynamic_scan import TurntableOptions, turntable_options_from_dict
 from plantsim.errors import ConfigError
 from plantsim.mesh import PLACEMENTS, UNITS_TO_M
 from plantsim.rig import RigGeometry
@@ -82,6 +83,8 @@ class RunConfig:
       ideal: turn off every imperfection (perfect geometry). Today's scanner
         has none yet; later sensor and motor models honour it.
       threads: ray-casting threads (None: all cores).
+      turntable: how the table moves (mode, servo, jitter, encoder); see
+        :class:`plantsim.dynamic_scan.TurntableOptions`.
     """
 
     plant: PlantOptions = PlantOptions()
@@ -92,6 +95,7 @@ class RunConfig:
     seed: int = 0
     ideal: bool = False
     threads: int | None = None
+    turntable: TurntableOptions = TurntableOptions()
 
     def __post_init__(self):
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
@@ -110,6 +114,7 @@ class RunConfig:
             "seed": self.seed,
             "ideal": self.ideal,
             "threads": self.threads,
+            "turntable": dataclasses.asdict(self.turntable),
         }
 
 
@@ -137,10 +142,10 @@ def config_from_dict(data: dict[str, Any], *, base_dir: str | os.PathLike | None
 
     Relative paths of ``plant.mesh`` are taken relative to ``base_dir``.
     """
-    unknown = sorted(set(data) - set(_SECTIONS) - {"lidar"} - set(_TOP_LEVEL))
+    unknown = sorted(set(data) - set(_SECTIONS) - {"lidar", "turntable"} - set(_TOP_LEVEL))
     if unknown:
         raise ConfigError(f"unknown key(s) or section(s) {', '.join(unknown)}; valid: "
-                          f"{', '.join(list(_SECTIONS) + ['lidar'] + list(_TOP_LEVEL))}")
+                          f"{', '.join(list(_SECTIONS) + ['lidar', 'turntable'] + list(_TOP_LEVEL))}")
     parts = {}
     for name, cls in _SECTIONS.items():
         values = dict(data.get(name, {}))
@@ -150,6 +155,10 @@ def config_from_dict(data: dict[str, Any], *, base_dir: str | os.PathLike | None
             values["T_turntable_mesh"] = tuple(tuple(float(x) for x in row)
                                                for row in values["T_turntable_mesh"])
         parts[name] = _build(cls, values, name)
+    try:
+        parts["turntable"] = turntable_options_from_dict(data.get("turntable", {}))
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"[turntable] {exc}") from exc
     lidar_values = dict(data.get("lidar", {}))
     try:
         base = lidar_preset(lidar_values.pop("preset", "urg-04lx-ug01"))

@@ -75,16 +75,19 @@ def run_scan(config: RunConfig, *, progress: Progress | None = None) -> ScanResu
     plant = load_configured_plant(config)
     timings["load_mesh"] = time.perf_counter() - t
 
-    t = time.perf_counter()
-    scene = build_scene(config.rig, plant, plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
-    timings["build_scene"] = time.perf_counter() - t
-
     # The run's single source of randomness (used by the sensor and motor models).
     _rng = np.random.default_rng(config.seed)
-    t = time.perf_counter()
-    caster = RayCaster(scene, config.lidar, nthread=config.threads)
-    raw = step_and_shoot(scene, config.lidar, config.scan, caster=caster, progress=progress)
-    timings["scan"] = time.perf_counter() - t
+    if config.turntable.uses_physics(config.ideal):
+        scene, raw = _dynamic_scan(config, plant, _rng, timings, progress)
+    else:
+        t = time.perf_counter()
+        scene = build_scene(config.rig, plant, plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
+        timings["build_scene"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        caster = RayCaster(scene, config.lidar, nthread=config.threads)
+        raw = step_and_shoot(scene, config.lidar, config.scan, caster=caster, progress=progress)
+        timings["scan"] = time.perf_counter() - t
 
     t = time.perf_counter()
     cloud = reconstruct(raw)
@@ -92,6 +95,29 @@ def run_scan(config: RunConfig, *, progress: Progress | None = None) -> ScanResu
         cloud = cloud.plant_only()
     timings["reconstruct"] = time.perf_counter() - t
     return ScanResult(config=config, plant=plant, scene=scene, raw=raw, cloud=cloud, timings_s=timings)
+
+
+def _dynamic_scan(config: RunConfig, plant: PlantMesh, rng: np.random.Generator, timings: dict,
+                  progress: Progress | None) -> tuple[Scene, RawScan]:
+    """The scan with the servo's physics (issue 4): step or continuous mode."""
+    from plantsim.dynamic_scan import PoseCaster, continuous_scan, dynamic_step_and_shoot
+    from plantsim.dynamics import build_dynamic_scene
+
+    options = config.turntable.effective(config.ideal)
+    t = time.perf_counter()
+    dscene = build_dynamic_scene(config.rig, plant, options.dynamics,
+                                 plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
+    timings["build_scene"] = time.perf_counter() - t
+    t = time.perf_counter()
+    caster = PoseCaster(dscene.scene, config.lidar, nthread=config.threads)
+    if options.mode == "continuous":
+        result = continuous_scan(dscene, config.lidar, config.scan.sweep_deg, options, rng,
+                                 caster=caster, progress=progress)
+    else:
+        result = dynamic_step_and_shoot(dscene, config.lidar, config.scan, options, rng,
+                                        caster=caster, progress=progress)
+    timings["scan"] = time.perf_counter() - t
+    return dscene.scene, result.raw
 
 
 def sidecar(result: ScanResult) -> dict:
