@@ -8,6 +8,7 @@ import sys
 import time
 
 from plantsim.errors import PlantSimError
+from plantsim.sensor import PRESETS
 
 log = logging.getLogger("plantsim")
 
@@ -20,6 +21,7 @@ def _scan_overrides(args: argparse.Namespace) -> dict:
         ("scan", "step_deg"): args.step_deg, ("scan", "sweep_deg"): args.sweep_deg,
         ("output", "path"): args.output, ("output", "plant_only"): args.plant_only or None,
         ("seed",): args.seed, ("ideal",): args.ideal or None, ("threads",): args.threads,
+        ("lidar", "preset"): args.lidar, ("sensor_model", "footprint_rings"): args.footprint_rings,
     }
     out: dict = {}
     for key, value in pairs.items():
@@ -98,7 +100,12 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
     scan.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360)")
     scan.add_argument("--seed", type=int, help="seed of all randomness (default 0)")
-    scan.add_argument("--ideal", action="store_true", help="turn off every imperfection")
+    scan.add_argument("--ideal", action="store_true",
+                      help="perfect geometry: one ray per beam, no noise, no intensity, no dropouts")
+    scan.add_argument("--lidar", choices=sorted(PRESETS),
+                      help="sensor preset (default urg-04lx-ug01)")
+    scan.add_argument("--footprint-rings", type=int,
+                      help="rings of sub-rays per beam footprint: 0 one ray, 1 7, 2 19 (default), 3 37")
     scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
     scan.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
     scan.set_defaults(func=cmd_scan)
