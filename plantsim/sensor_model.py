@@ -232,7 +232,8 @@ class FootprintCaster:
         self._max_lines = max_lines
         self._batch = None
         self._nsim = 0
-        self.n_refined = 0
+        self.n_refined = 0  # beams whose whole footprint was cast, last cast()
+        self.n_rays = 0  # rays cast (padding included), last cast()
         stat = scene.model.stat
         self._pad_origin = np.asarray(stat.center) + (0.0, 0.0, 10.0 * max(stat.extent, 1.0))
 
@@ -243,6 +244,7 @@ class FootprintCaster:
         return self._batch
 
     def _ray(self, batch, pnt, vec, ids):
+        self.n_rays += len(ids) * (np.shape(vec)[-2])
         return batch.ray(pnt, vec, geomgroup=LIDAR_GEOMGROUP, flg_static=True,
                          bodyexclude=self.scene.lidar_body_id, ids=ids, normal=True)
 
@@ -281,6 +283,7 @@ class FootprintCaster:
         probe_d = self.dirs_base[:, probe].reshape(-1, 3)
         adr = self.scene.turntable_qpos_adr
         self.n_refined = 0
+        self.n_rays = 0
         for start in range(0, n, self._max_lines):
             block = q[start:start + self._max_lines]
             batch = self._ensure_batch(len(block))
