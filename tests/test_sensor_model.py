@@ -173,6 +173,26 @@ def test_thin_cylinders_before_a_wall_give_mixed_pixels_that_one_ray_does_not():
     assert mixed(full)[0] == n_mixed
 
 
+def test_footprints_split_far_apart_give_edge_errors_not_points():
+    # 3 mm rods 0.3 m away, a bright wall 0.5 m behind them: where a footprint
+    # straddles both, the returns spread over more than 0.1 m (URG preset).
+    rods = [dict(name=f"rod{k}", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.0015, 0.05],
+                 pos=[X_LIDAR - 0.3, 0.0, Z_LIDAR + 0.3 * math.tan(math.radians(-8 + 1.7 * k))],
+                 quat=[math.cos(math.pi / 4), math.sin(math.pi / 4), 0.0, 0.0])
+            for k in range(10)]
+    scene = scene_with(*rods, wall(0.8))
+    raw = scan(scene, NO_NOISE)
+    band = np.abs(raw.beam_angle_rad) < math.radians(10)
+    edge = band & (raw.status[0] == BeamStatus.EDGE)
+    assert edge.sum() >= 5
+    assert np.all(np.isnan(raw.range_m[0, edge]))
+    assert raw.counts()["by_status"]["edge"] == int((raw.status == BeamStatus.EDGE).sum())
+    # With dropouts off those beams are mixed pixels between rod and wall instead.
+    mixed = scan(scene, SensorModel(range_noise=False, quantise=False, dropouts=False))
+    x_dist = mixed.range_m[0, edge] * np.cos(mixed.beam_angle_rad[edge])
+    assert np.all((x_dist > 0.3) & (x_dist < 0.8))
+
+
 def test_intensity_falls_as_cos_of_incidence():
     for model in (SensorModel(range_noise=False), SensorModel(range_noise=False, footprint_rings=0),
                   SensorModel(range_noise=False, adaptive_footprint=False)):
