@@ -162,19 +162,6 @@ class LidarSpec:
 # DMAX 5600 mm, ARES 1024 steps/turn, AMIN 44, AMAX 725, AFRT 384, SCAN 600 rpm
 # (../shared/notes/sensor-hokuyo-urg04lx.md). Beam 0 is step 44, i.e.
 # (44 - 384) x 360/1024 = -119.53 deg from the front; 683 beams reach +119.88 deg.
-# Sensor model (same notes; datasheet figures unverified against the PDF):
-# - range resolution 1 mm;
-# - accuracy +-30 mm for 60-1000 mm, +-3 % of range for 1000-4095 mm, read as
-#   one standard deviation: sigma = max(30 mm, 0.03 r) (fit to your unit);
-# - noise growth with incidence by the 1/cos law (gain 1): range precision
-#   falls with the received signal, which falls as cos(theta) (Soudarissanane
-#   et al. 2009/2011: noise dominates above about 60 degrees);
-# - footprint under 20 mm at 2 m and up to 40 mm at 4 m: a line through both
-#   figures is 10 mrad full divergence from a ~0 mm exit diameter;
-# - 4 m guaranteed on white paper, DMAX 5.6 m: a white target head-on is
-#   detected out to 5.6 m (the detection threshold);
-# - edge error (code 7) for footprints spread over more than 0.1 m: an assumed
-#   figure, not a datasheet one (real URG clouds keep many mixed pixels).
 URG_04LX_UG01 = LidarSpec(
     name="urg-04lx-ug01",
     n_beams=683,
@@ -185,6 +172,21 @@ URG_04LX_UG01 = LidarSpec(
     scan_period_s=0.100,
     steps_per_rev=1024,
     first_step=44,
+
+    # Sensor model (same notes; datasheet figures unverified against the PDF):
+    # - range resolution 1 mm;
+    # - accuracy +-30 mm for 60-1000 mm, +-3 % of range for 1000-4095 mm, read
+    #   as one standard deviation: sigma = max(30 mm, 0.03 r) (fit your unit);
+    # - noise growth with incidence by the 1/cos law (gain 1): range precision
+    #   falls with the received signal, which falls as cos(theta)
+    #   (Soudarissanane et al. 2009/2011: noise dominates above ~60 degrees);
+    # - footprint under 20 mm at 2 m and up to 40 mm at 4 m: a line through
+    #   both figures is 10 mrad full divergence from a ~0 mm exit diameter;
+    # - 4 m guaranteed on white paper, DMAX 5.6 m: a white target head-on is
+    #   detected out to 5.6 m (the detection threshold);
+    # - edge error (code 7) for footprints spread over more than 0.1 m: an
+    #   assumed figure, not a datasheet one (real URG clouds keep many mixed
+    #   pixels).
     beam_divergence_rad=0.010,
     beam_exit_diameter_m=0.0,
     range_resolution_m=0.001,
