@@ -251,6 +251,7 @@ SICK_LMS111 = LidarSpec(
     edge_range_spread_m=0.10,
 )
 
+# The default first: error messages list the presets in this order.
 PRESETS: dict[str, LidarSpec] = {spec.name: spec for spec in (URG_04LX_UG01, UTM_30LX, SICK_LMS111)}
 
 
@@ -258,5 +259,5 @@ def lidar_preset(name: str) -> LidarSpec:
     """Looks up a preset by name (case-insensitive)."""
     key = name.strip().lower()
     if key not in PRESETS:
-        raise ValueError(f"unknown LiDAR preset {name!r}; valid presets: {', '.join(sorted(PRESETS))}")
+        raise ValueError(f"unknown LiDAR preset {name!r}; valid presets: {', '.join(PRESETS)}")
     return PRESETS[key]

@@ -291,7 +291,8 @@ def test_presets_are_valid_and_sourced():
     assert urg.range_resolution_m == 0.001 and urg.range_sigma_m == 0.030
     for spec in PRESETS.values():
         assert spec.beam_divergence_rad > 0 and spec.detection_range_white_m is not None
-    with pytest.raises(ValueError, match="unknown LiDAR preset 'x'; valid presets: sick-lms111"):
+    with pytest.raises(ValueError, match="unknown LiDAR preset 'x'; valid presets: "
+                                         "urg-04lx-ug01, utm-30lx, sick-lms111"):
         lidar_preset("x")
 
 
