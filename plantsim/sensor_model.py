@@ -390,6 +390,11 @@ def realistic_step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan,
               fp["geom_id"].size, caster.pattern.n_subrays)
     range_m, status, intensity = apply_sensor(fp["range_m"], fp["power"], fp["cos_incidence"],
                                               fp["spread_m"], lidar, model, rng)
+    too_near = int((status == BeamStatus.TOO_NEAR).sum())
+    if too_near > (status == BeamStatus.OK).sum():
+        log.warning("%d beams returned nearer than %s's range_min_m (%g m), more than gave a "
+                    "range: move the sensor back ([rig] lidar_distance_m = %g m now)", too_near,
+                    lidar.name, lidar.range_min_m, scene.rig.lidar_distance_m)
     line_t0 = schedule.step_time_s * np.arange(schedule.n_lines)
     time_s = line_t0[:, None] + lidar.beam_time_offsets_s()[None, :]
     angle_per_beam = np.broadcast_to(angles[:, None], range_m.shape)

@@ -223,10 +223,11 @@ def test_dark_grazing_surface_drops_out_as_low_intensity_and_stays_a_miss():
         == BeamStatus.OK
 
 
-def test_nothing_below_min_range_or_beyond_max_range():
+def test_nothing_below_min_range_or_beyond_max_range(caplog):
     lidar = URG_04LX_UG01.replace(range_min_m=0.5, range_max_m=1.0)
     near = scan(scene_with(wall(0.3)), SensorModel(), lidar=lidar, lines=5)
     assert near.status[0, FRONT_BEAM] == BeamStatus.TOO_NEAR
+    assert "more than gave a range: move the sensor back" in caplog.text
     far = scan(scene_with(wall(1.5)), SensorModel(), lidar=lidar, lines=5)
     assert far.status[0, FRONT_BEAM] == BeamStatus.NO_ECHO
     edge = scan(scene_with(wall(0.99)), SensorModel(), lidar=lidar, lines=30)
