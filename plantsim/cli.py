@@ -8,6 +8,7 @@ import sys
 import time
 
 from plantsim.errors import PlantSimError
+from plantsim.sensor import PRESETS
 
 log = logging.getLogger("plantsim")
 
@@ -21,7 +22,9 @@ def _scan_overrides(args: argparse.Namespace) -> dict:
         ("output", "path"): args.output, ("output", "plant_only"): args.plant_only or None,
         ("seed",): args.seed, ("ideal",): args.ideal or None, ("threads",): args.threads,
         ("turntable", "mode"): args.mode, ("turntable", "rpm"): args.rpm,
+        ("turntable", "physics"): args.physics,
         ("turntable", "deskew"): False if args.no_deskew else None,
+        ("lidar", "preset"): args.lidar, ("sensor_model", "footprint_rings"): args.footprint_rings,
     }
     out: dict = {}
     for key, value in pairs.items():
@@ -100,12 +103,20 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
     scan.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360)")
     scan.add_argument("--seed", type=int, help="seed of all randomness (default 0)")
-    scan.add_argument("--ideal", action="store_true", help="turn off every imperfection")
+    scan.add_argument("--ideal", action="store_true",
+                      help="perfect geometry: one ray per beam, no noise, no intensity, no dropouts")
+    scan.add_argument("--lidar", choices=sorted(PRESETS),
+                      help="sensor preset (default urg-04lx-ug01)")
+    scan.add_argument("--footprint-rings", type=int,
+                      help="rings of sub-rays per beam footprint: 0 one ray, 1 7, 2 19 (default), 3 37")
     scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
     scan.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
     scan.add_argument("--mode", choices=["step", "continuous"],
                       help="step: move, settle, scan a line; continuous: the table turns while the "
                            "LiDAR scans (default step)")
+    scan.add_argument("--physics", choices=["auto", "kinematic", "dynamic"],
+                      help="turntable physics: auto (default: kinematic step scans, dynamic continuous "
+                           "scans), kinematic, or dynamic (the servo in MuJoCo)")
     scan.add_argument("--rpm", type=float, help="continuous mode's turntable speed, rpm (default 1)")
     scan.add_argument("--no-deskew", action="store_true",
                       help="reconstruct with one angle per line, as a naive rig does")

@@ -1,7 +1,8 @@
 """A scan's whole configuration: plant, sensor, rig, schedule, output.
 
 Every option can come from a TOML file (sections ``[plant]``, ``[lidar]``,
-``[rig]``, ``[scan]``, ``[output]``, ``[turntable]``) and from the command line, which wins.
+``[rig]``, ``[scan]``, ``[output]``, ``[sensor_model]``, ``[turntable]``) and from
+the command line, which wins.
 The resolved configuration goes into every output's sidecar JSON.
 """
 
@@ -20,6 +21,7 @@ from plantsim.mesh import PLACEMENTS, UNITS_TO_M
 from plantsim.rig import RigGeometry
 from plantsim.scan import StepScan
 from plantsim.sensor import PRESETS, LidarSpec, lidar_preset
+from plantsim.sensor_model import SensorModel
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -80,11 +82,13 @@ class RunConfig:
 
     Attributes:
       seed: seed of the run's one ``numpy.random.Generator`` (all randomness).
-      ideal: turn off every imperfection (perfect geometry). Today's scanner
-        has none yet; later sensor and motor models honour it.
+      ideal: turn off every imperfection (perfect geometry): one ray per
+        beam, exact ranges, no intensity, no dropouts.
       threads: ray-casting threads (None: all cores).
       turntable: how the table moves (mode, servo, jitter, encoder); see
         :class:`plantsim.dynamic_scan.TurntableOptions`.
+      sensor_model: the sensor imperfections and reflectances of a
+        non-ideal run (``[sensor_model]``).
     """
 
     plant: PlantOptions = PlantOptions()
@@ -96,6 +100,7 @@ class RunConfig:
     ideal: bool = False
     threads: int | None = None
     turntable: TurntableOptions = TurntableOptions()
+    sensor_model: SensorModel = SensorModel()
 
     def __post_init__(self):
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
@@ -115,10 +120,12 @@ class RunConfig:
             "ideal": self.ideal,
             "threads": self.threads,
             "turntable": dataclasses.asdict(self.turntable),
+            "sensor_model": dataclasses.asdict(self.sensor_model),
         }
 
 
-_SECTIONS = {"plant": PlantOptions, "rig": RigGeometry, "scan": StepScan, "output": OutputOptions}
+_SECTIONS = {"plant": PlantOptions, "rig": RigGeometry, "scan": StepScan, "output": OutputOptions,
+             "sensor_model": SensorModel}
 _TOP_LEVEL = ("seed", "ideal", "threads")
 
 

@@ -92,7 +92,10 @@ class TurntableOptions:
     def uses_physics(self, ideal: bool) -> bool:
         """Whether a scan with these options runs the servo's physics."""
         if self.physics == "auto":
-            return self.mode == "continuous" or not ideal
+            # A step scan stays kinematic unless asked for: the sensor model
+            # (footprint, noise) applies to kinematic scans, and its error
+            # dwarfs a settled servo's.
+            return self.mode == "continuous"
         return self.physics == "dynamic"
 
     def effective(self, ideal: bool) -> "TurntableOptions":

@@ -22,6 +22,7 @@ from plantsim.reconstruct import PointCloud, reconstruct
 from plantsim.resources import bundled_plant_path
 from plantsim.scan import RawScan, RayCaster, step_and_shoot
 from plantsim.scene import Scene, build_scene
+from plantsim.sensor_model import FootprintCaster, realistic_step_and_shoot
 
 log = logging.getLogger(__name__)
 
@@ -76,17 +77,25 @@ def run_scan(config: RunConfig, *, progress: Progress | None = None) -> ScanResu
     timings["load_mesh"] = time.perf_counter() - t
 
     # The run's single source of randomness (used by the sensor and motor models).
-    _rng = np.random.default_rng(config.seed)
+    rng = np.random.default_rng(config.seed)
     if config.turntable.uses_physics(config.ideal):
-        scene, raw = _dynamic_scan(config, plant, _rng, timings, progress)
+        if not config.ideal:
+            log.warning("dynamic scans cast one geometric ray per beam at its own instant; the "
+                        "sensor model (footprint, noise, intensity, dropouts) is not applied yet")
+        scene, raw = _dynamic_scan(config, plant, rng, timings, progress)
     else:
         t = time.perf_counter()
         scene = build_scene(config.rig, plant, plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
         timings["build_scene"] = time.perf_counter() - t
 
         t = time.perf_counter()
-        caster = RayCaster(scene, config.lidar, nthread=config.threads)
-        raw = step_and_shoot(scene, config.lidar, config.scan, caster=caster, progress=progress)
+        if config.ideal:
+            caster = RayCaster(scene, config.lidar, nthread=config.threads)
+            raw = step_and_shoot(scene, config.lidar, config.scan, caster=caster, progress=progress)
+        else:
+            caster = FootprintCaster(scene, config.lidar, config.sensor_model, nthread=config.threads)
+            raw = realistic_step_and_shoot(scene, config.lidar, config.scan, config.sensor_model,
+                                           rng=rng, caster=caster, progress=progress)
         timings["scan"] = time.perf_counter() - t
 
     t = time.perf_counter()

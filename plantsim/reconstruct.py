@@ -98,11 +98,14 @@ def reconstruct(raw: RawScan, *, intensity: np.ndarray | None = None) -> PointCl
 
     Args:
       raw: the raw record.
-      intensity: optional (n_lines, n_beams) per-beam intensity.
+      intensity: optional (n_lines, n_beams) per-beam intensity; default:
+        the raw record's own (None for ideal scans).
 
     Returns:
       :class:`PointCloud` with one point per beam whose status is OK.
     """
+    if intensity is None:
+        intensity = raw.intensity
     ok = raw.status == BeamStatus.OK
     lines, beams = np.nonzero(ok)
     range_m = raw.range_m[lines, beams]

@@ -92,6 +92,8 @@ class RawScan:
       geom_id: (n_lines, n_beams) int32, MuJoCo geom id or -1.
       time_s: (n_lines, n_beams) float64, seconds since the scan's start.
       T_base_lidar: (4, 4) float64.
+      intensity: (n_lines, n_beams) float32 received power in [0, 1] (NaN
+        without echo), or None when not modelled (ideal scans).
     """
 
     turntable_angle_rad: np.ndarray
@@ -103,6 +105,7 @@ class RawScan:
     geom_id: np.ndarray
     time_s: np.ndarray
     T_base_lidar: np.ndarray
+    intensity: np.ndarray | None = None
 
     @property
     def n_lines(self) -> int:

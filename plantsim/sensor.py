@@ -49,6 +49,24 @@ class LidarSpec:
         taken at ``t0 + (first_step + i) / steps_per_rev * scan_period_s``,
         t0 being the line's time stamp (step 0).
       first_step: mirror step of beam 0.
+      beam_divergence_rad: full angle of the beam's 1/e^2 cone, radians; the
+        footprint's 1/e^2 diameter at range r is
+        ``beam_exit_diameter_m + r * beam_divergence_rad``. 0: a thin ray.
+      beam_exit_diameter_m: 1/e^2 beam diameter at the optical centre, metres.
+      range_resolution_m: step of the reported range (quantisation); 0: none.
+      range_sigma_m: range noise standard deviation floor, metres.
+      range_sigma_rel: range noise standard deviation as a fraction of range;
+        at normal incidence sigma(r) = max(range_sigma_m, range_sigma_rel * r)
+        (:func:`plantsim.sensor_model.range_sigma`).
+      range_sigma_incidence_gain: growth of the noise with incidence angle
+        theta: sigma is multiplied by ``1 + gain * (1 / cos(theta) - 1)``;
+        0 turns it off, 1 is the 1/cos law.
+      detection_range_white_m: range at which a white (reflectance 1)
+        Lambertian target seen head-on returns the least power the sensor can
+        range on; weaker returns are LOW_INTENSITY. None: no threshold.
+      edge_range_spread_m: a beam whose footprint returns spread in range
+        (power-weighted standard deviation) by more than this gives EDGE instead
+        of a mixed-pixel range. None: never.
     """
 
     name: str = "custom"
@@ -60,6 +78,14 @@ class LidarSpec:
     scan_period_s: float
     steps_per_rev: int | None = None
     first_step: int = 0
+    beam_divergence_rad: float = 0.0
+    beam_exit_diameter_m: float = 0.0
+    range_resolution_m: float = 0.0
+    range_sigma_m: float = 0.0
+    range_sigma_rel: float = 0.0
+    range_sigma_incidence_gain: float = 0.0
+    detection_range_white_m: float | None = None
+    edge_range_spread_m: float | None = None
 
     def __post_init__(self):
         if int(self.n_beams) != self.n_beams or self.n_beams < 1:
@@ -92,6 +118,18 @@ class LidarSpec:
                 raise ValueError(
                     f"first_step + n_beams must fit in steps_per_rev={self.steps_per_rev}, got "
                     f"first_step={self.first_step}, n_beams={self.n_beams}")
+
+        for field in ("beam_divergence_rad", "beam_exit_diameter_m", "range_resolution_m",
+                      "range_sigma_m", "range_sigma_rel", "range_sigma_incidence_gain"):
+            value = getattr(self, field)
+            if (isinstance(value, bool) or not isinstance(value, (int, float))
+                    or not math.isfinite(value) or value < 0):
+                raise ValueError(f"{field} must be a finite number >= 0, got {value!r}")
+        for field in ("detection_range_white_m", "edge_range_spread_m"):
+            value = getattr(self, field)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                      or not math.isfinite(value) or value <= 0):
+                raise ValueError(f"{field} must be a finite number > 0 or None, got {value!r}")
 
     @property
     def fov_deg(self) -> float:
@@ -137,14 +175,92 @@ URG_04LX_UG01 = LidarSpec(
     scan_period_s=0.100,
     steps_per_rev=1024,
     first_step=44,
+
+    # Sensor model (same notes; datasheet figures unverified against the PDF):
+    # - range resolution 1 mm;
+    # - accuracy +-30 mm for 60-1000 mm, +-3 % of range for 1000-4095 mm, read
+    #   as one standard deviation: sigma = max(30 mm, 0.03 r) (fit your unit);
+    # - noise growth with incidence by the 1/cos law (gain 1): range precision
+    #   falls with the received signal, which falls as cos(theta)
+    #   (Soudarissanane et al. 2009/2011: noise dominates above ~60 degrees);
+    # - footprint under 20 mm at 2 m and up to 40 mm at 4 m: a line through
+    #   both figures is 10 mrad full divergence from a ~0 mm exit diameter;
+    # - 4 m guaranteed on white paper, DMAX 5.6 m: a white target head-on is
+    #   detected out to 5.6 m (the detection threshold);
+    # - edge error (code 7) for footprints spread over more than 0.1 m: an
+    #   assumed figure, not a datasheet one (real URG clouds keep many mixed
+    #   pixels).
+    beam_divergence_rad=0.010,
+    beam_exit_diameter_m=0.0,
+    range_resolution_m=0.001,
+    range_sigma_m=0.030,
+    range_sigma_rel=0.03,
+    range_sigma_incidence_gain=1.0,
+    detection_range_white_m=5.6,
+    edge_range_spread_m=0.10,
 )
 
-PRESETS: dict[str, LidarSpec] = {URG_04LX_UG01.name: URG_04LX_UG01}
+# Hokuyo UTM-30LX. Grid from the SCIP 2.0 specification (Hokuyo C-42-03320B,
+# table 2): 1440 steps/turn, steps 0..1080, front step 540, 270.25 deg; 40 Hz
+# (25 ms) scan, range 0.1-30 m, 1 mm resolution, accuracy +-30 mm at
+# 0.1-10 m and +-50 mm at 10-30 m (datasheet, unverified), read as one
+# standard deviation and approximated by max(30 mm, r x 50 mm / 30 m). The
+# vendor gives no divergence; these beam figures are libpointmatcher's
+# SimpleSensorNoise ones for this sensor (half-angle 0.6 mrad, 1.5 mm beam
+# constant, taken as the radius), an estimate to fit.
+UTM_30LX = LidarSpec(
+    name="utm-30lx",
+    n_beams=1081,
+    angle_min_deg=(0 - 540) * 360.0 / 1440,
+    angle_increment_deg=360.0 / 1440,
+    range_min_m=0.100,
+    range_max_m=30.0,
+    scan_period_s=0.025,
+    steps_per_rev=1440,
+    first_step=0,
+    beam_divergence_rad=0.0012,
+    beam_exit_diameter_m=0.003,
+    range_resolution_m=0.001,
+    range_sigma_m=0.030,
+    range_sigma_rel=0.05 / 30.0,
+    range_sigma_incidence_gain=1.0,
+    detection_range_white_m=30.0,
+    edge_range_spread_m=0.10,
+)
+
+# SICK LMS111-10100 at 0.25 deg / 25 Hz: 270 deg, 1081 beams, 0.5-20 m
+# working range, 1 mm output resolution (datasheet, unverified). SICK's
+# support article "Measurement Errors LMSxxx" gives the LMS1xx a typical
+# systematic error of +-30 mm and a typical statistical error of 12 mm (one
+# standard deviation): sigma = 12 mm flat (the systematic part is a per-unit
+# bias, not modelled). Beam: "distance x 0.015 rad + 8 mm" (LMS1xx operating
+# instructions 8012471, section 3.6.2). No encoder steps: the 25 Hz mirror
+# spends 270/360 of its turn on the field of view.
+SICK_LMS111 = LidarSpec(
+    name="sick-lms111",
+    n_beams=1081,
+    angle_min_deg=-135.0,
+    angle_increment_deg=0.25,
+    range_min_m=0.5,
+    range_max_m=20.0,
+    scan_period_s=0.040,
+    beam_divergence_rad=0.015,
+    beam_exit_diameter_m=0.008,
+    range_resolution_m=0.001,
+    range_sigma_m=0.012,
+    range_sigma_rel=0.0,
+    range_sigma_incidence_gain=1.0,
+    detection_range_white_m=20.0,
+    edge_range_spread_m=0.10,
+)
+
+# The default first: error messages list the presets in this order.
+PRESETS: dict[str, LidarSpec] = {spec.name: spec for spec in (URG_04LX_UG01, UTM_30LX, SICK_LMS111)}
 
 
 def lidar_preset(name: str) -> LidarSpec:
     """Looks up a preset by name (case-insensitive)."""
     key = name.strip().lower()
     if key not in PRESETS:
-        raise ValueError(f"unknown LiDAR preset {name!r}; valid presets: {', '.join(sorted(PRESETS))}")
+        raise ValueError(f"unknown LiDAR preset {name!r}; valid presets: {', '.join(PRESETS)}")
     return PRESETS[key]

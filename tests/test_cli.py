@@ -42,7 +42,8 @@ def test_scan_writes_cloud_and_sidecar(tmp_path, small_mesh, capsys):
     assert {"mujoco", "numpy", "laspy", "plantsim"} <= set(meta["versions"])
     assert {"load_mesh", "build_scene", "scan", "reconstruct", "encode"} <= set(meta["timings_s"])
     assert meta["counts"]["beams"] == 12 * 683
-    assert meta["counts"]["returns"] + meta["counts"]["by_status"]["no_echo"] == 12 * 683
+    assert sum(meta["counts"]["by_status"].values()) == 12 * 683
+    assert meta["counts"]["returns"] == meta["counts"]["by_status"]["ok"]
 
 
 def test_plant_only_and_other_formats(tmp_path, small_mesh):

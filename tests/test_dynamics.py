@@ -223,7 +223,9 @@ def test_settle_timeout_is_an_error(box_plant):
 def test_static_ideal_run_is_the_kinematic_scan(box_plant):
     config = RunConfig(ideal=True, scan=StepScan(step_deg=45.0))
     assert not config.turntable.uses_physics(config.ideal)
-    assert RunConfig(ideal=False).turntable.uses_physics(False)
+    assert not RunConfig(ideal=False).turntable.uses_physics(False)
+    assert TurntableOptions(physics="dynamic").uses_physics(False)
+    assert TurntableOptions(physics="dynamic").uses_physics(True)
     assert RunConfig(ideal=True, turntable=TurntableOptions(mode="continuous")).turntable.uses_physics(True)
 
 

@@ -1,0 +1,91 @@
+"""The cost of realism: a 1 degree scan of a plant, ideal vs the sensor model.
+
+Prints the median wall time of the scan phase (casting + sensor model) over
+several runs for the ideal ray caster and for the sensor model at a few
+footprint settings, with the rays cast and the beams refined.
+
+    PYTHONPATH=. python scripts/bench_sensor.py [mesh] [--up y] [--runs 5]
+
+The default mesh is the original tool's maize (../shared/seed-rig/maize.stl,
+Y up, metres); the target is under 3 s for the default footprint on the
+2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+
+import numpy as np
+
+from plantsim.mesh import load_plant
+from plantsim.rig import RigGeometry
+from plantsim.scan import RayCaster, StepScan, step_and_shoot
+from plantsim.scene import build_scene
+from plantsim.sensor import lidar_preset
+from plantsim.sensor_model import FootprintCaster, SensorModel, realistic_step_and_shoot
+
+
+def median_time(fn, runs: int) -> tuple[float, float, object]:
+    """Median wall time, median CPU time (all threads) and the last result."""
+    fn()  # warm-up: builds the batch, touches the memory
+    walls, cpus, result = [], [], None
+    for _ in range(runs):
+        t, c = time.perf_counter(), time.process_time()
+        result = fn()
+        walls.append(time.perf_counter() - t)
+        cpus.append(time.process_time() - c)
+    return statistics.median(walls), statistics.median(cpus), result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("mesh", nargs="?", default="../shared/seed-rig/maize.stl")
+    parser.add_argument("--up", default="y", help="the mesh's up axis (seed rig: y)")
+    parser.add_argument("--units", default="m")
+    parser.add_argument("--lidar", default="urg-04lx-ug01")
+    parser.add_argument("--step-deg", type=float, default=1.0)
+    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=None)
+    args = parser.parse_args()
+
+    lidar = lidar_preset(args.lidar)
+    plant = load_plant(args.mesh, units=args.units, up=args.up)
+    scene = build_scene(RigGeometry(), plant)
+    schedule = StepScan(step_deg=args.step_deg)
+    n_beams = schedule.n_lines * lidar.n_beams
+    print(f"mesh {args.mesh}: {plant.n_faces:,} triangles; {lidar.name}; "
+          f"{schedule.n_lines} lines x {lidar.n_beams} beams = {n_beams:,} beams; "
+          f"{args.threads or os.cpu_count()} threads; median of {args.runs} runs")
+    print(f"{'case':44s} {'wall s':>7s} {'cpu s':>7s} {'rays':>11s} {'refined':>9s} {'points':>8s}")
+
+    caster = RayCaster(scene, lidar, nthread=args.threads)
+    med, cpu, raw = median_time(lambda: step_and_shoot(scene, lidar, schedule, caster=caster),
+                                 args.runs)
+    print(f"{'ideal (--ideal: one ray, no model)':44s} {med:7.3f} {cpu:7.3f} {n_beams:11,d} "
+          f"{'-':>9s} {raw.counts()['returns']:8,d}")
+    ideal_s = med
+
+    cases = [("model, 1 ray per beam (footprint_rings=0)", SensorModel(footprint_rings=0)),
+             ("model, default (19 sub-rays, adaptive)", SensorModel()),
+             ("model, 37 sub-rays, adaptive", SensorModel(footprint_rings=3)),
+             ("model, 19 sub-rays, every sub-ray cast", SensorModel(adaptive_footprint=False))]
+    for label, model in cases:
+        fc = FootprintCaster(scene, lidar, model, nthread=args.threads)
+        med, cpu, raw = median_time(
+            lambda: realistic_step_and_shoot(scene, lidar, schedule, model,
+                                             rng=np.random.default_rng(0), caster=fc), args.runs)
+        print(f"{label:44s} {med:7.3f} {cpu:7.3f} {fc.n_rays:11,d} {fc.n_refined:9,d} "
+              f"{raw.counts()['returns']:8,d}")
+        if model == SensorModel():
+            default_s, default_cpu = med, cpu
+    print(f"cost of realism (default footprint): {default_s:.2f} s vs {ideal_s:.2f} s ideal "
+          f"({default_s / ideal_s:.1f}x) wall; target < 3 s")
+    print(f"load average now: {' '.join(f'{x:.2f}' for x in os.getloadavg())} (other processes "
+          f"share the cores: cpu s / threads is the unloaded wall time)")
+
+
+if __name__ == "__main__":
+    main()
