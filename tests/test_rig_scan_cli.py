@@ -14,7 +14,7 @@ from plantsim.journal import read_journal
 
 @pytest.fixture
 def emulator():
-    with DynamixelEmulator(ids=(1,), speed_factor=10.0) as emu:
+    with DynamixelEmulator(ids=(1,), speed_factor=5.0) as emu:
         yield emu
 
 
