@@ -44,8 +44,8 @@ _MAX_PAYLOAD = 1 << 28  # a sanity bound on a frame's length field (256 MiB)
 
 
 def identity_hash(identity: dict) -> str:
-    """SHA-256 of the identity's canonical JSON (sorted keys, no spaces)."""
-    text = json.dumps(identity, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    """SHA-256 of the identity's canonical JSON (sorted keys, no spaces; inf as Infinity)."""
+    text = json.dumps(identity, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
@@ -235,6 +235,8 @@ class Journal:
 
     @staticmethod
     def make_header(identity: dict, *, n_lines: int, n_beams: int, started_unix_s: float) -> dict:
+        # As it will read back (tuples become lists), so stored and new compare key by key.
+        identity = json.loads(json.dumps(identity, sort_keys=True))
         return {"plantsim_journal": FORMAT_VERSION, "identity_sha256": identity_hash(identity),
                 "n_lines": int(n_lines), "n_beams": int(n_beams),
                 "started_unix_s": float(started_unix_s), "identity": identity}

@@ -41,21 +41,20 @@ def journal_path_for(output: str | os.PathLike) -> Path:
 def scan_identity(config: RunConfig, plant, turntable: Turntable, source: LineSource) -> dict:
     """What determines a scan's lines: a journal resumes only under the same identity.
 
-    The plant is identified by its placed geometry (a hash), not its file path, so
-    a relative path from another directory still resumes. Output options, threads
-    and the port are left out: they do not change a line.
+    Every section of the resolved configuration counts (so a section added later
+    counts too) except the output options and the thread count; the port is not
+    part of it either. The plant is identified by its placed geometry (a hash), not
+    its file path, so a relative path from another directory still resumes.
     """
     digest = hashlib.sha256()
     for array in (plant.vertices_mesh, plant.faces, plant.T_turntable_mesh):
         digest.update(array.tobytes())
-    config_data = config.to_dict()
-    plant_options = {k: v for k, v in config_data["plant"].items() if k != "mesh"}
-    return {
-        "plant": plant_options, "plant_geometry_sha256": digest.hexdigest(),
-        "lidar": config_data["lidar"], "rig": config_data["rig"], "scan": config_data["scan"],
-        "seed": config.seed, "ideal": config.ideal,
-        "turntable": turntable.identity(), "line_source": source.identity(),
-    }
+    identity = {k: v for k, v in config.to_dict().items() if k not in ("output", "threads")}
+    identity["plant"] = {k: v for k, v in identity["plant"].items() if k != "mesh"}
+    identity["plant_geometry_sha256"] = digest.hexdigest()
+    identity["rig_turntable"] = turntable.identity()
+    identity["line_source"] = source.identity()
+    return identity
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
