@@ -128,7 +128,7 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         return 2
     resume_hint = (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and run the "
                    "same command again with --resume")
-    source = UrgLidar(args.port) if args.lidar == "urg" else None
+    source = UrgLidar() if args.lidar == "urg" else None
     try:
         turntable = ServoTurntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id,
                                            model=args.model, retries=args.retries)

@@ -100,7 +100,8 @@ class SimulatedLidar:
 
     def describe(self) -> dict:
         return {"kind": "simulated", "model": self.lidar.name,
-                "cast_at": "the turntable's reported angle"}
+                "cast_at": "the turntable's reported angle",
+                "ranges": "exact first hit, one geometric ray per beam (no sensor noise model)"}
 
     def identity(self) -> dict:
         return {"kind": "simulated"}
