@@ -14,11 +14,13 @@ from plantsim.config import OutputOptions, PlantOptions, RunConfig, config_from_
 from plantsim.errors import (
     ConfigError,
     HardwareError,
+    JournalError,
     MeshError,
     PlantSimError,
     SceneError,
     ServoAlarmError,
     ServoCommunicationError,
+    ScanInterruptedError,
     SimulationError,
 )
 from plantsim.io import CLASSIFICATION, EXPORTERS, read_cloud, write_cloud
@@ -37,10 +39,13 @@ from plantsim.procedural import (
 from plantsim.reconstruct import PointCloud, reconstruct
 from plantsim.resources import bundled_plant_path
 from plantsim.rig import RigGeometry
+from plantsim.rigscan import RigScanResult, run_rig_scan, write_rig_result
 from plantsim.scan import RawScan, RayCaster, StepScan, step_and_shoot
 from plantsim.scene import HitClass, Scene, build_scene
+from plantsim.session import LineSource, SimulatedLidar, UrgLidar, run_session
 from plantsim.servo import PositionController, ServoConfig, ShaftSim, plan_profile
 from plantsim.sensor import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
 from plantsim.transforms import apply_T, invert_T, make_T
+from plantsim.turntable import ServoTurntable, SimulatedTurntable, Turntable
 
 __version__ = "0.1.0"

@@ -8,6 +8,7 @@ Examples::
 
     plantsim emulator --model xm430-w350 --id 1 --baud 57600
     plantsim rig ping --port /dev/ttyUSB0 --baud 57600 --id 1
+    plantsim rig scan --port /dev/ttyUSB0 --step-deg 10 -o plant.las [--resume]
 """
 
 from __future__ import annotations
@@ -51,7 +52,111 @@ def add_rig_commands(subparsers: argparse._SubParsersAction) -> argparse._SubPar
     ping = rig_commands.add_parser("ping", help="ping the servo; print model, firmware, position")
     _add_connection_arguments(ping)
     ping.set_defaults(func=run_rig_ping)
+    add_rig_scan_command(rig_commands)
     return rig_commands
+
+
+def add_rig_scan_command(rig_commands: argparse._SubParsersAction) -> None:
+    """Registers ``rig scan`` on the ``rig`` command's subparsers."""
+    scan = rig_commands.add_parser(
+        "scan", help="scan with the turntable servo (the LiDAR is simulated at its reported angle)",
+        description="Turns the servo through the schedule and takes one simulated LiDAR line at each "
+        "reported angle (hardware in the loop). Each line is journaled to OUT.journal as it "
+        "arrives; after a fault or Ctrl-C, run the same command with --resume.")
+    _add_connection_arguments(scan)
+    scan.add_argument("mesh", nargs="?", help="plant mesh; default: the bundled maize")
+    scan.add_argument("-o", "--output", help="output point cloud (default scan.las)")
+    scan.add_argument("--config", help="TOML file with any of the options of `plantsim scan`")
+    scan.add_argument("--units", choices=["m", "cm", "mm"], help="the mesh file's unit (default m)")
+    scan.add_argument("--up", choices=["x", "y", "z"], help="the mesh file's up axis (default z)")
+    scan.add_argument("--placement", choices=["base", "bbox", "none"], help="how the plant sits on the disk")
+    scan.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
+    scan.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360; at most one turn)")
+    scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
+    scan.add_argument("--resume", action="store_true",
+                      help="continue the scan journaled in OUT.journal from its last complete line")
+    scan.add_argument("--keep-journal", action="store_true",
+                      help="keep OUT.journal after success (default: delete it once the cloud is written)")
+    scan.add_argument("--retries", type=int, default=2,
+                      help="repeats of a servo read/write whose reply was lost (default: 2)")
+    scan.add_argument("--settle-s", type=float, default=0.0, help="wait after each move, s (default: 0)")
+    scan.add_argument("--lidar", choices=["sim", "urg"], default="sim",
+                      help="sim: simulated LiDAR at the servo's reported angle (default); "
+                      "urg: a real Hokuyo (not available yet)")
+    scan.set_defaults(func=run_rig_scan)
+
+
+def _rig_scan_config(args: argparse.Namespace):
+    """The resolved RunConfig: TOML file, then command-line options."""
+    from pathlib import Path
+
+    from plantsim.config import config_from_dict, load_toml, merge
+
+    data, base_dir = {}, None
+    if args.config:
+        data = load_toml(args.config)
+        base_dir = Path(args.config).resolve().parent
+    pairs = {("plant", "mesh"): args.mesh, ("plant", "units"): args.units, ("plant", "up"): args.up,
+             ("plant", "placement"): args.placement, ("scan", "step_deg"): args.step_deg,
+             ("scan", "sweep_deg"): args.sweep_deg, ("output", "path"): args.output,
+             ("output", "plant_only"): args.plant_only or None}
+    overrides: dict = {}
+    for (section, key), value in pairs.items():
+        if value is not None:
+            overrides.setdefault(section, {})[key] = value
+    # A mesh given on the command line is relative to the working directory.
+    return config_from_dict(merge(data, overrides), base_dir=base_dir if not args.mesh else None)
+
+
+def run_rig_scan(args: argparse.Namespace) -> int:
+    import time
+
+    from plantsim.cli import _progress_bar
+    from plantsim.errors import HardwareError, ScanInterruptedError
+    from plantsim.io import check_output_path
+    from plantsim.rigscan import journal_path_for, run_rig_scan as rig_scan, write_rig_result
+    from plantsim.session import UrgLidar
+    from plantsim.turntable import ServoTurntable
+
+    t0 = time.perf_counter()
+    config = _rig_scan_config(args)
+    output = check_output_path(config.output.path)  # fail before the servo moves
+    journal = journal_path_for(output)
+    if journal.exists() and not args.resume:
+        print(f"plantsim: error: {journal} holds an unfinished scan; run the same command with --resume "
+              "to continue it, or delete it to start over", file=sys.stderr)
+        return 2
+    resume_hint = (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and run the "
+                   "same command again with --resume")
+    source = UrgLidar() if args.lidar == "urg" else None
+    try:
+        turntable = ServoTurntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id,
+                                           model=args.model, retries=args.retries)
+    except HardwareError as exc:
+        print(f"plantsim: error: {exc}", file=sys.stderr)
+        return 1
+    progress, close_bar = _progress_bar("rig scan")
+    try:
+        with turntable:
+            result = rig_scan(config, turntable, resume=args.resume, source=source,
+                              settle_s=args.settle_s, progress=progress)
+    except ScanInterruptedError as exc:
+        close_bar()
+        print(f"plantsim: error: {exc}", file=sys.stderr)
+        print(resume_hint, file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        close_bar()
+        print("plantsim: interrupted. " + resume_hint.removeprefix("plantsim: "), file=sys.stderr)
+        return 130
+    finally:
+        close_bar()
+    path = write_rig_result(result, keep_journal=args.keep_journal)
+    cloud, raw = result.result.cloud, result.result.raw
+    resumed = f" ({result.lines_resumed} resumed from the journal)" if result.lines_resumed else ""
+    print(f"wrote {len(cloud):,} points ({cloud.counts_by_class()['plant']:,} on the plant) from "
+          f"{raw.n_lines} lines{resumed} x {raw.n_beams} beams to {path} in {time.perf_counter() - t0:.2f} s")
+    return 0
 
 
 def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:

@@ -43,3 +43,23 @@ class ServoAlarmError(HardwareError):
     def __init__(self, message: str, hardware_error_status: int = 0):
         super().__init__(message)
         self.hardware_error_status = hardware_error_status
+
+
+class JournalError(PlantSimError):
+    """A scan journal cannot be used: damaged, from another configuration, or in the way."""
+
+
+class ScanInterruptedError(HardwareError):
+    """A rig scan stopped on a hardware failure; the lines taken are safe in its journal.
+
+    Attributes:
+        journal_path: the journal to ``--resume`` from.
+        lines_done: complete lines in the journal.
+        n_lines: lines in the whole scan.
+    """
+
+    def __init__(self, message: str, *, journal_path: str, lines_done: int, n_lines: int):
+        super().__init__(message)
+        self.journal_path = journal_path
+        self.lines_done = lines_done
+        self.n_lines = n_lines

@@ -21,9 +21,11 @@ def test_commands_are_registered_and_rig_has_a_hook():
     top, hook = parser()
     args = top.parse_args(["emulator", "--id", "1", "--id", "3", "--baud", "1000000"])
     assert args.func is cli_rig.run_emulator and args.ids == [1, 3] and args.baud_bps == 1_000_000
-    scan = hook.add_parser("scan")
-    scan.set_defaults(func=lambda a: 0)
-    assert top.parse_args(["rig", "scan"]).rig_command == "scan"
+    probe = hook.add_parser("probe")  # the hook still takes further rig commands
+    probe.set_defaults(func=lambda a: 0)
+    assert top.parse_args(["rig", "probe"]).rig_command == "probe"
+    args = top.parse_args(["rig", "scan", "--port", "/dev/ttyUSB0", "--step-deg", "10", "--resume"])
+    assert args.func is cli_rig.run_rig_scan and args.resume and args.step_deg == 10
     with pytest.raises(SystemExit):
         top.parse_args(["rig", "ping", "--port", "x", "--baud", "12345"])
 

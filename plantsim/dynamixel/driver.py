@@ -30,6 +30,9 @@ _CHECKLIST = (
     "Check that the servo is powered (12 V), that the baud rate and ID match the servo's "
     "Baud Rate and ID registers, and that the cable and USB adapter are connected."
 )
+# How long to wait for a late status after a lost one before discarding it: far longer
+# than a servo takes (Return Delay Time 0.5 ms) plus two 16 ms USB latency periods.
+_LATE_STATUS_S = 0.05
 # Block read for polling a move: Moving (122) .. Present Position (132..135).
 _POLL_ADDRESS, _POLL_LENGTH = 122, 14
 
@@ -165,10 +168,26 @@ class DynamixelTurntable:
             try:
                 return self._call_once(what, method, *args, check_alert=check_alert)
             except _LostStatus as lost:
+                self._drain_late_status()
                 if attempt == attempts:
                     raise ServoCommunicationError(str(lost)) from None
                 _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
         raise AssertionError("unreachable")
+
+    def _drain_late_status(self) -> None:
+        """Waits out and discards a status that may still arrive for a lost one.
+
+        Protocol 2.0 status packets carry no sequence number, and the SDK takes the
+        first status with the right ID as the answer: a late reply to the lost request
+        would be read as the answer to the next one (wrong values, silently).
+        """
+        time.sleep(_LATE_STATUS_S)
+        with self._lock:
+            if self._port is not None:
+                try:
+                    self._port.clearPort()
+                except _port_errors() as exc:
+                    _log.debug("clearing %s: %s", self.port_name, exc)
 
     def _call_once(self, what: str, method: str, *args, check_alert: bool):
         with self._lock:
@@ -187,6 +206,12 @@ class DynamixelTurntable:
             value, result, error = out
         else:
             (result, error), value = out, None
+        if result == 0 and method == "readTxRx" and len(value) != args[-1]:
+            # The SDK does not check the length: a status of another length is the
+            # late reply to an earlier request, not this one's.
+            raise _LostStatus(
+                f"{what} on {self.port_name} ID {self.dxl_id}: a status with {len(value)} data bytes "
+                f"instead of {args[-1]} (a late reply to an earlier request)")
         if result != 0:
             if result == -1000:  # COMM_PORT_BUSY: a previous call left the flag set
                 self._port.is_using = False

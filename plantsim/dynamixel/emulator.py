@@ -92,6 +92,8 @@ class EmulatedServo:
         self.pending_write: tuple[int, bytes] | None = None
         self.silent_count: int | None = 0  # replies to drop; None = forever
         self.corrupt_count: int | None = 0
+        self.late_count: int = 0  # replies to send late
+        self.late_s: float = 0.0
         self._reset_registers(keep=())
         self.set("ID", dxl_id)
         self.set("Baud Rate", _baud_index(baud_bps))
@@ -393,6 +395,19 @@ class DynamixelEmulator:
         with self._lock:
             self.servo(dxl_id).corrupt_count = count
 
+    def inject_late_reply(self, dxl_id: int, *, delay_s: float = 0.06, count: int = 1) -> None:
+        """The servo's next ``count`` status packets leave ``delay_s`` late (the bus stalls meanwhile).
+
+        Later than the SDK's timeout (about 34 ms), such a status arrives while the
+        SDK waits for the answer to its next request.
+        """
+        _check_count(count)
+        if count is None or not (math.isfinite(delay_s) and delay_s > 0):
+            raise ValueError(f"delay_s must be finite and > 0 and count an integer, got {delay_s!r}, {count!r}")
+        with self._lock:
+            s = self.servo(dxl_id)
+            s.late_count, s.late_s = count, delay_s
+
     def inject_hardware_error(self, dxl_id: int, bits: int = OVERLOAD) -> None:
         """Sets Hardware Error Status ``bits`` (default overload): torque off until REBOOT."""
         if not (isinstance(bits, int) and 0 < bits <= 0xFF):
@@ -405,6 +420,7 @@ class DynamixelEmulator:
             for s in self._servos:
                 s.silent_count = 0
                 s.corrupt_count = 0
+                s.late_count = 0
 
     def disconnect(self) -> None:
         """Closes the pty, as if the USB adapter were pulled; the SDK's next call fails."""
@@ -464,6 +480,9 @@ class DynamixelEmulator:
             replies = self._dispatch(packet, listening)
         for s, error, params in replies:
             delay_s = s.get("Return Delay Time") * 2e-6
+            if s.late_count > 0:
+                s.late_count -= 1
+                delay_s += s.late_s
             if delay_s > 0:
                 time.sleep(delay_s)
             # The alert bit was taken when the instruction ran (a REBOOT clears it after).

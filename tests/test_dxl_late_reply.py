@@ -1,0 +1,43 @@
+"""A status that arrives after the SDK's timeout must not be taken for the next answer.
+
+Protocol 2.0 status packets carry no sequence number and the SDK does not check a
+read's length, so without care a late reply shifts every later answer by one.
+"""
+
+import pytest
+
+from plantsim.dynamixel.driver import DynamixelTurntable
+from plantsim.dynamixel.emulator import DynamixelEmulator
+from plantsim.errors import ServoCommunicationError
+
+
+@pytest.fixture
+def emulator():
+    with DynamixelEmulator(ids=(1,)) as emu:
+        yield emu
+
+
+def test_late_reply_does_not_become_the_next_answer(emulator):
+    with DynamixelTurntable(retries=0) as driver:
+        driver.connect(emulator.port_path)
+        driver.write_register("Homing Offset", 1000)
+        emulator.inject_late_reply(1, delay_s=0.06)
+        with pytest.raises(ServoCommunicationError, match="no status packet"):
+            driver.read_register("Torque Enable")
+        assert driver.read_register("Present Position") == 1000
+        assert driver.read_register("Firmware Version") == 46
+
+
+def test_late_reply_is_retried(emulator, caplog):
+    with DynamixelTurntable(retries=2) as driver:
+        driver.connect(emulator.port_path)
+        emulator.inject_late_reply(1, delay_s=0.06)
+        assert driver.read_register("Model Number") == 1020
+        assert driver.read_register("Firmware Version") == 46
+        assert "attempt 1 of 3" in caplog.text
+
+
+def test_inject_late_reply_validates():
+    with DynamixelEmulator(ids=(1,)) as emu:
+        with pytest.raises(ValueError, match="delay_s must be finite and > 0"):
+            emu.inject_late_reply(1, delay_s=0)

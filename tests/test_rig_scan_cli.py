@@ -1,0 +1,94 @@
+"""``plantsim rig scan`` end to end against an emulator in this process."""
+
+import json
+import threading
+import time
+
+import pytest
+import trimesh
+
+from plantsim import cli
+from plantsim.dynamixel.emulator import DynamixelEmulator
+from plantsim.journal import read_journal
+
+
+@pytest.fixture
+def emulator():
+    with DynamixelEmulator(ids=(1,), speed_factor=5.0) as emu:
+        yield emu
+
+
+@pytest.fixture
+def cylinder(tmp_path):
+    path = tmp_path / "cylinder.stl"
+    trimesh.creation.cylinder(radius=0.05, height=0.3, sections=64).export(path)
+    return str(path)
+
+
+def scan_args(emulator, cylinder, out, *extra):
+    return ["rig", "scan", cylinder, "--port", emulator.port_path, "--baud", "57600", "--id", "1",
+            "--step-deg", "30", "-o", str(out), "--retries", "5", *extra]
+
+
+def test_rig_scan_writes_cloud_and_sidecar_and_removes_the_journal(tmp_path, emulator, cylinder, capsys):
+    out = tmp_path / "plant.ply"
+    assert cli.main(scan_args(emulator, cylinder, out)) == 0, capsys.readouterr().err
+    assert "from 12 lines x 683 beams to" in capsys.readouterr().out
+    side = json.loads((tmp_path / "plant.ply.json").read_text())
+    assert side["rig"]["turntable"]["kind"] == "dynamixel" and side["rig"]["turntable"]["id"] == 1
+    assert side["rig"]["turntable"]["baud_bps"] == 57600 and side["rig"]["lidar"]["kind"] == "simulated"
+    assert side["config"]["scan"]["step_deg"] == 30
+    assert out.exists() and not (tmp_path / "plant.ply.journal").exists()
+
+
+def inject_when_journal_has(emulator, journal, lines, fault):
+    """Injects a fault once the journal holds ``lines`` lines (polls the file)."""
+
+    def watch():
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if journal.exists():
+                try:
+                    if len(read_journal(journal).lines) >= lines:
+                        fault()
+                        return
+                except Exception:  # a record in the middle of being written
+                    pass
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_fault_exits_non_zero_with_how_to_resume_then_resume_completes(tmp_path, emulator, cylinder, capsys):
+    out = tmp_path / "plant.las"
+    journal = tmp_path / "plant.las.journal"
+    watcher = inject_when_journal_has(emulator, journal, 3, lambda: emulator.inject_no_reply(1, count=None))
+    assert cli.main(scan_args(emulator, cylinder, out)) == 1
+    watcher.join(timeout=10)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert f"on {emulator.port_path} ID 1" in err[0] and "no status packet" in err[0]
+    assert err[-1] == (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and "
+                       "run the same command again with --resume")
+    done = len(read_journal(journal).lines)
+    assert 3 <= done < 12 and not out.exists()
+
+    emulator.clear_faults()
+    assert cli.main(scan_args(emulator, cylinder, out)) == 2  # without --resume: refused
+    assert "holds an unfinished scan; run the same command with --resume" in capsys.readouterr().err
+    assert cli.main(scan_args(emulator, cylinder, out, "--resume", "--keep-journal")) == 0, capsys.readouterr().err
+    assert f"12 lines ({done} resumed from the journal)" in capsys.readouterr().out
+    assert [line.index for line in read_journal(journal).lines] == list(range(12))
+    side = json.loads((tmp_path / "plant.las.json").read_text())
+    assert side["journal"] == {"path": str(journal), "kept": True, "lines_resumed": done}
+
+
+def test_unreachable_servo_and_real_lidar_give_clear_errors(tmp_path, emulator, cylinder, capsys):
+    out = tmp_path / "plant.ply"
+    wrong_id = ["rig", "scan", cylinder, "--port", emulator.port_path, "--id", "7", "-o", str(out)]
+    assert cli.main(wrong_id) == 1
+    assert "ID 7 at 57600 bps failed" in capsys.readouterr().err
+    assert cli.main(scan_args(emulator, cylinder, out, "--lidar", "urg")) == 2
+    assert "real URG LiDAR is not available yet" in capsys.readouterr().err
+    assert not (tmp_path / "plant.ply.journal").exists()
