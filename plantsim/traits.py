@@ -84,6 +84,8 @@ class TraitSettings:
         stem_link_distance: XY points closer than this are in the same stem; must be
             smaller than the gap between neighbouring stems.
         stem_min_points: components of the slice with fewer points are not stems.
+        stem_max_diameter: fitted circles wider than this are not stems; nor are those
+            whose radius exceeds twice the component's extent (too short an arc).
         stem_removal_margin: added to a stem's radius when removing it before leaves.
         leaf_link_distance: 3D points closer than this are on the same leaf.
         leaf_min_points: components with fewer points are not leaves.
@@ -98,6 +100,7 @@ class TraitSettings:
     stem_slice_thickness: float = 0.01
     stem_link_distance: float = 0.004
     stem_min_points: int = 8
+    stem_max_diameter: float = 0.05
     stem_removal_margin: float = 0.003
     leaf_link_distance: float = 0.006
     leaf_min_points: int = 30
@@ -109,6 +112,7 @@ class TraitSettings:
             "stem_slice_z",
             "stem_slice_thickness",
             "stem_link_distance",
+            "stem_max_diameter",
             "leaf_link_distance",
             "leaf_bin_length",
             "grid_cell",
@@ -353,6 +357,7 @@ def estimate_stems(points_turntable: Any, *, settings: TraitSettings | None = No
 
     Returns:
         Stems sorted by x then y of their centre; empty if the slice holds no stem.
+        Components whose circle is implausible are left out and logged (INFO).
     """
     s = settings or TraitSettings()
     pts = _as_cloud(points_turntable)
@@ -363,6 +368,16 @@ def estimate_stems(points_turntable: Any, *, settings: TraitSettings | None = No
     fits = []
     for g in groups:
         fit = fit_circle(slab[g])
+        extent = float(np.ptp(slab[g], axis=0).max())
+        # A short, nearly straight arc (a leaf edge, or one side of a stem) fits any
+        # large circle; a stem's points span at least about a radius.
+        if 2 * fit.radius > s.stem_max_diameter or fit.radius > 2 * extent:
+            logger.info(
+                "slice component of %d points at (%.4f, %.4f) m is no stem: circle diameter "
+                "%.4g m, extent %.4g m (stem_max_diameter %.4g m)",
+                g.size, *fit.center_xy, 2 * fit.radius, extent, s.stem_max_diameter,
+            )
+            continue
         fits.append((fit, g.size))
     fits.sort(key=lambda t: t[0].center_xy)
     return tuple(
