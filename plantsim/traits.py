@@ -637,10 +637,11 @@ def traits_from_mesh(
     """Traits of the true mesh, measured the way a cloud is measured.
 
     Height and convex-hull volume are exact (top vertex; hull of the surface clipped
-    at ``base_z + ground_clearance``, as for a cloud). Stems, leaves and projected area run the cloud pipeline on
-    ``n_samples`` uniform surface samples: the result is the method's own answer on a
-    perfect, dense scan, so comparing a scan against it isolates the scanner's error
-    from the method's bias (compare against ``traits_from_truth`` for the total).
+    at ``base_z + ground_clearance``, as for a cloud). Stems, leaves and projected
+    area run the cloud pipeline on ``n_samples`` uniform surface samples (plus the
+    vertices): the result is the method's own answer on a perfect, dense scan, so
+    comparing a scan against it isolates the scanner's error from the method's bias
+    (compare against ``traits_from_truth`` for the total).
 
     Args:
         vertices_turntable: (v, 3) float64, metres, turntable frame.
@@ -755,10 +756,12 @@ def traits_from_truth(truth: Mapping[str, Any]) -> PlantTraits:
         ("leaf_length_m", traits.leaf_length_m),
     ):
         theirs = _num(truth, key)
-        if math.isfinite(theirs) and math.isfinite(ours) and not math.isclose(theirs, ours, rel_tol=1e-6, abs_tol=1e-9):
+        both = math.isfinite(theirs) and math.isfinite(ours)
+        if both and not math.isclose(theirs, ours, rel_tol=1e-6, abs_tol=1e-9):
             logger.warning(
-                "truth[%r] = %.6g differs from the %s recomputed from its lists (%.6g); using %.6g",
-                key, theirs, "aggregate", ours, ours,
+                "truth[%r] = %.6g differs from %.6g recomputed from its lists by the "
+                "PlantTraits definition; using %.6g",
+                key, theirs, ours, ours,
             )
     return traits
 

@@ -78,6 +78,20 @@ def test_random_mesh_matches_brute_force_including_edges_and_vertices():
         assert one[0] == pytest.approx(got.distance[i], abs=1e-12)
 
 
+@pytest.fixture(scope="module")
+def mixed_sizes():
+    """A small sphere under one huge triangle, points near and around, brute-forced once."""
+    rng = np.random.default_rng(3)
+    small = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    big_v = np.array([[-2.0, -2.0, 0.3], [2.0, -2.0, 0.3], [0.0, 2.0, 0.3]])
+    v = np.vstack([small.vertices, big_v])
+    n = len(small.vertices)
+    f = np.vstack([small.faces, [[n, n + 1, n + 2]]])
+    near, _ = metrics.sample_surface(v[:n], small.faces, 600, rng=1)
+    pts = np.vstack([rng.normal(size=(600, 3)) * 0.2, near + rng.normal(size=near.shape) * 0.003])
+    return v, f, pts, _brute_force_distance(pts, v, f)
+
+
 @pytest.mark.parametrize(
     "options",
     [
@@ -89,18 +103,11 @@ def test_random_mesh_matches_brute_force_including_edges_and_vertices():
         {"max_box_cells": 8, "cell_size": 0.001},  # deep pyramids
     ],
 )
-def test_mixed_triangle_sizes_are_exact_on_every_search_path(options):
-    rng = np.random.default_rng(3)
-    small = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
-    big_v = np.array([[-2.0, -2.0, 0.3], [2.0, -2.0, 0.3], [0.0, 2.0, 0.3]])
-    v = np.vstack([small.vertices, big_v])
-    n = len(small.vertices)
-    f = np.vstack([small.faces, [[n, n + 1, n + 2]]])
+def test_mixed_triangle_sizes_are_exact_on_every_search_path(mixed_sizes, options):
+    v, f, pts, want = mixed_sizes
     prox = metrics.MeshProximity(v, f, **options)
-    near, _ = metrics.sample_surface(v[:n], small.faces, 1000, rng=1)
-    pts = np.vstack([rng.normal(size=(1000, 3)) * 0.2, near + rng.normal(size=near.shape) * 0.003])
     got = prox.query(pts, chunk_size=300)
-    np.testing.assert_allclose(got.distance, _brute_force_distance(pts, v, f), atol=1e-12)
+    np.testing.assert_allclose(got.distance, want, atol=1e-12)
     if not options:
         assert len(prox._pyramids) >= 2  # the big triangle really sits in a coarser grid
 
@@ -164,7 +171,7 @@ def test_coverage_of_a_half_sampled_plane_is_about_half():
     xx, yy = np.meshgrid(g, h, indexing="ij")
     cloud = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
     d = 0.005
-    m = metrics.cloud_mesh_metrics(cloud, v, f, coverage_distance=d, rng=0)
+    m = metrics.cloud_mesh_metrics(cloud, v, f, coverage_distance=d, n_surface_samples=50_000, rng=0)
     # Covered: x <= 0.5 + d, i.e. 0.505 of the area; 4 standard errors of slack.
     assert m.coverage == pytest.approx(0.5 + d, abs=4 * m.coverage_stderr)
     assert 0 < m.coverage_stderr < 0.5 / np.sqrt(m.n_surface_samples) + 1e-12

@@ -294,3 +294,12 @@ def test_a_straight_slice_component_is_not_taken_for_a_stem(caplog):
         stems = traits.estimate_stems(np.vstack([blade, stem]))
     assert len(stems) == 1 and stems[0].diameter_m == pytest.approx(0.006, rel=1e-6)
     assert "is no stem" in caplog.text
+
+
+def test_truth_aggregates_follow_one_definition_and_disagreement_is_logged(caplog):
+    truth = _truth()
+    truth["leaf_width_m"] = 0.009  # say, a mean over leaves rather than the largest
+    with caplog.at_level("WARNING", logger="plantsim.traits"):
+        t = traits.traits_from_truth(truth)
+    assert t.leaf_width_m == 0.01
+    assert "truth['leaf_width_m'] = 0.009 differs from 0.01" in caplog.text
