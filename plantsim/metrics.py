@@ -46,6 +46,9 @@ _SLACK = 1 + 1e-9
 # Grids with at most this many cells keep dense start/count tables (16 bytes a cell).
 _DENSE_CELLS = 1 << 22
 
+# Cells (point, cell) enumerated at once in the grid search: bounds its temporaries.
+_CELLS_PER_BATCH = 1 << 20
+
 
 # --------------------------------------------------------------------------
 # validation
@@ -438,10 +441,14 @@ class MeshProximity:
                 box_lo, shape, n_box = grid.box(pts[todo], u[todo])
                 # The coarsest grid has at most max_box_cells cells: it takes the rest.
                 fits = (n_box <= self.max_box_cells) | (level == len(pyramid) - 1)
-                rows = todo[fits & (n_box > 0)]
                 sel = np.flatnonzero(fits & (n_box > 0))
-                if rows.size:
-                    rep, offset = _ragged(sel, np.zeros(sel.size, np.int64), n_box[sel])
+                # Batches of at most _CELLS_PER_BATCH cells bound the memory.
+                ends = np.cumsum(n_box[sel])
+                limits = np.arange(_CELLS_PER_BATCH, ends[-1] if ends.size else 0, _CELLS_PER_BATCH)
+                for batch in np.split(sel, np.unique(np.maximum(np.searchsorted(ends, limits), 1))):
+                    if batch.size == 0:
+                        continue
+                    rep, offset = _ragged(batch, np.zeros(batch.size, np.int64), n_box[batch])
                     cells = box_lo[rep] + _unravel(offset, shape[rep])
                     # Only cells that meet the ball of radius u, not just its cube.
                     corner = grid.origin + cells * grid.cell_size

@@ -112,6 +112,14 @@ def test_mixed_triangle_sizes_are_exact_on_every_search_path(mixed_sizes, option
         assert len(prox._pyramids) >= 2  # the big triangle really sits in a coarser grid
 
 
+def test_small_batches_and_chunks_change_nothing(mixed_sizes, monkeypatch):
+    v, f, pts, want = mixed_sizes
+    monkeypatch.setattr(metrics, "_CELLS_PER_BATCH", 7)
+    monkeypatch.setattr(metrics, "_PAIRS_PER_BLOCK", 5)
+    got = metrics.MeshProximity(v, f, cell_size=0.01).query(pts, chunk_size=37, workers=2)
+    np.testing.assert_allclose(got.distance, want, atol=1e-12)
+
+
 def test_degenerate_triangles_are_measured_as_segments():
     v = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0], [0.0, 1, 0]])
     f = np.array([[0, 1, 2]])  # collinear: a segment from x=0 to x=2
