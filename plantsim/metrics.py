@@ -440,12 +440,16 @@ class MeshProximity:
         # distance bounds the answer, so the cubes of cells searched next are small.
         n_seed = min(self._SEED_K, self.n_triangles)
         d_seed, seed = self._centroid_tree.query(pts, k=n_seed)
-        self._test_pairs(pts, np.repeat(np.arange(n), n_seed), seed.reshape(-1), best_sq, best_tri, best_pt)
+        seed_rows = np.repeat(np.arange(n), n_seed)
+        self._test_pairs(pts, seed_rows, seed.reshape(-1), best_sq, best_tri, best_pt)
         # Every untested triangle has its centroid at least d_k away (d_k: the last
         # seed's), so it lies at least d_k - R away (R: the largest centroid-to-vertex
         # distance of its group). Where that beats the best, the group needs no search:
         # on meshes of even, compact triangles this settles most points here.
-        d_k = d_seed.reshape(n, n_seed)[:, -1] if n_seed < self.n_triangles else np.full(n, np.inf)
+        if n_seed < self.n_triangles:
+            d_k = d_seed.reshape(n, n_seed)[:, -1]
+        else:  # every triangle was a seed
+            d_k = np.full(n, np.inf)
         for pyramid, r_max in zip(self._pyramids, self._pyramid_radius):
             u = np.sqrt(best_sq) * _SLACK
             todo = np.flatnonzero(d_k - r_max <= u)
@@ -508,7 +512,9 @@ class MeshProximity:
             best_pt[rb] = q[fb]
 
 
-def point_to_mesh_distance(points: Any, vertices: Any, faces: Any, *, chunk_size: int = 50_000) -> ClosestPoints:
+def point_to_mesh_distance(
+    points: Any, vertices: Any, faces: Any, *, chunk_size: int = 50_000
+) -> ClosestPoints:
     """Exact unsigned distance of every point to a triangle mesh.
 
     Convenience wrapper of :class:`MeshProximity` for one query; build a
