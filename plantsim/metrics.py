@@ -633,6 +633,8 @@ class HeightBand:
         n_samples: surface samples that fell in the band.
         coverage: share of the band's area within ``coverage_distance`` of the cloud
             (NaN when no sample fell in the band).
+        n_points: cloud points whose z falls in the band.
+        median: median cloud->mesh distance of those points, metres (NaN if none).
     """
 
     z_low: float
@@ -640,6 +642,8 @@ class HeightBand:
     area_m2: float
     n_samples: int
     coverage: float
+    n_points: int
+    median: float
 
 
 @dataclasses.dataclass(frozen=True)
@@ -734,7 +738,18 @@ def cloud_mesh_metrics(
         raise ValueError(f"band_height must be > 0 metres, got {band_height}")
     if int(n_surface_samples) < 1:
         raise ValueError(f"n_surface_samples must be >= 1, got {n_surface_samples}")
-    prox = proximity if proximity is not None else MeshProximity(v, f)
+    if proximity is None:
+        prox = MeshProximity(v, f)
+    elif proximity.faces.shape == f.shape and np.array_equal(proximity.vertices, v) and np.array_equal(
+        proximity.faces, f
+    ):
+        prox = proximity
+    else:
+        raise ValueError(
+            "proximity was built for another mesh "
+            f"({proximity.vertices.shape[0]} vertices, {proximity.n_triangles} faces; got "
+            f"{v.shape[0]} and {f.shape[0]}); build MeshProximity(vertices, faces) for this one"
+        )
     d = prox.query(pts).distance
 
     samples, _ = sample_surface(v, f, int(n_surface_samples), rng=rng)
@@ -750,6 +765,11 @@ def cloud_mesh_metrics(
     band = np.clip(((samples[:, 2] - z0) // band_height).astype(np.int64), 0, n_bands - 1)
     counts = np.bincount(band, minlength=n_bands)
     hits = np.bincount(band, weights=covered.astype(np.float64), minlength=n_bands)
+    # Cloud points by the same bands (points below or above the mesh go to the end
+    # bands, so every point is counted once).
+    pt_band = np.clip(((pts[:, 2] - z0) // band_height).astype(np.int64), 0, n_bands - 1)
+    order = np.argsort(pt_band, kind="stable")
+    per_band = np.split(d[order], np.searchsorted(pt_band[order], np.arange(1, n_bands)))
     bands = []
     for i in range(n_bands):
         c = int(counts[i])
@@ -760,6 +780,8 @@ def cloud_mesh_metrics(
                 area_m2=area * c / ns,
                 n_samples=c,
                 coverage=float(hits[i] / c) if c else float("nan"),
+                n_points=int(per_band[i].size),
+                median=float(np.median(per_band[i])) if per_band[i].size else float("nan"),
             )
         )
     mean_fwd = float(d.mean())

@@ -200,6 +200,10 @@ def test_height_bands_see_the_missing_top():
     cov = [b.coverage for b in m.bands]
     assert cov[0] == 1.0 and cov[1] > 0.98 and cov[2] < 0.02 and cov[3] == 0.0
     assert sum(b.area_m2 for b in m.bands) == pytest.approx(1.0)
+    # Only the cloud's top row, at z = 0.5 exactly, opens the third band.
+    assert [b.n_points for b in m.bands][2:] == [len(g), 0]
+    assert sum(b.n_points for b in m.bands) == len(cloud)
+    assert m.bands[0].median == 0.0 and np.isnan(m.bands[3].median)
     assert m.bands[0].z_low == 0.0 and m.bands[-1].z_high == pytest.approx(1.0)
 
 
@@ -256,5 +260,8 @@ def test_validation_errors_say_what_arrived(sphere):
         metrics.MeshProximity(np.zeros((3, 3)), [[0.0, 1.0, 2.0]])
     with pytest.raises(ValueError, match=r"coverage_distance must be > 0 metres, got 0"):
         metrics.cloud_mesh_metrics(np.zeros((1, 3)), v, f, coverage_distance=0)
+    other = metrics.MeshProximity(*_plane())
+    with pytest.raises(ValueError, match=r"proximity was built for another mesh"):
+        metrics.cloud_mesh_metrics(np.zeros((1, 3)), v, f, proximity=other)
     with pytest.raises(ValueError, match=r"rng must be a numpy.random.Generator or an int seed"):
         metrics.sample_surface(v, f, 10, rng="seed")
