@@ -65,7 +65,7 @@ def test_random_mesh_matches_brute_force_including_edges_and_vertices():
     scattered = rng.normal(size=(500, 3)) * 0.2
     far = rng.normal(size=(20, 3)) * 3.0
     pts = np.vstack([near_vertices, near_edges, on_edges, scattered, far, v])
-    got = metrics.point_to_mesh_distance(pts, v, f, k=1)
+    got = metrics.point_to_mesh_distance(pts, v, f, chunk_size=100)
     want = _brute_force_distance(pts, v, f)
     np.testing.assert_allclose(got.distance, want, rtol=0, atol=1e-12)
     # The returned closest point and triangle are consistent with the distance.
@@ -78,17 +78,46 @@ def test_random_mesh_matches_brute_force_including_edges_and_vertices():
         assert one[0] == pytest.approx(got.distance[i], abs=1e-12)
 
 
-def test_mixed_triangle_sizes_use_several_levels_and_stay_exact():
+@pytest.fixture(scope="module")
+def mixed_sizes():
+    """A small sphere under one huge triangle, points near and around, brute-forced once."""
     rng = np.random.default_rng(3)
-    small = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
+    small = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
     big_v = np.array([[-2.0, -2.0, 0.3], [2.0, -2.0, 0.3], [0.0, 2.0, 0.3]])
     v = np.vstack([small.vertices, big_v])
-    f = np.vstack([small.faces, [[len(small.vertices), len(small.vertices) + 1, len(small.vertices) + 2]]])
-    prox = metrics.MeshProximity(v, f)
-    assert len(prox._levels) >= 2
-    pts = rng.normal(size=(2000, 3)) * 0.2
-    got = prox.query(pts, k=2, chunk_size=300)
-    np.testing.assert_allclose(got.distance, _brute_force_distance(pts, v, f), atol=1e-12)
+    n = len(small.vertices)
+    f = np.vstack([small.faces, [[n, n + 1, n + 2]]])
+    near, _ = metrics.sample_surface(v[:n], small.faces, 600, rng=1)
+    pts = np.vstack([rng.normal(size=(600, 3)) * 0.2, near + rng.normal(size=near.shape) * 0.003])
+    return v, f, pts, _brute_force_distance(pts, v, f)
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},  # defaults: the big triangle sits in a coarser grid
+        {"max_box_cells": 1},  # every point searches the coarsest copies
+        {"max_cells_per_triangle": 1},  # many grid levels
+        {"cell_size": 0.002},  # fine grid: many cells per triangle and per point
+        {"cell_size": 5.0},  # one cell holds everything
+        {"max_box_cells": 8, "cell_size": 0.001},  # deep pyramids
+    ],
+)
+def test_mixed_triangle_sizes_are_exact_on_every_search_path(mixed_sizes, options):
+    v, f, pts, want = mixed_sizes
+    prox = metrics.MeshProximity(v, f, **options)
+    got = prox.query(pts, chunk_size=300)
+    np.testing.assert_allclose(got.distance, want, atol=1e-12)
+    if not options:
+        assert len(prox._pyramids) >= 2  # the big triangle really sits in a coarser grid
+
+
+def test_small_batches_and_chunks_change_nothing(mixed_sizes, monkeypatch):
+    v, f, pts, want = mixed_sizes
+    monkeypatch.setattr(metrics, "_CELLS_PER_BATCH", 7)
+    monkeypatch.setattr(metrics, "_PAIRS_PER_BLOCK", 5)
+    got = metrics.MeshProximity(v, f, cell_size=0.01).query(pts, chunk_size=37, workers=2)
+    np.testing.assert_allclose(got.distance, want, atol=1e-12)
 
 
 def test_degenerate_triangles_are_measured_as_segments():
@@ -150,7 +179,7 @@ def test_coverage_of_a_half_sampled_plane_is_about_half():
     xx, yy = np.meshgrid(g, h, indexing="ij")
     cloud = np.column_stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)])
     d = 0.005
-    m = metrics.cloud_mesh_metrics(cloud, v, f, coverage_distance=d, rng=0)
+    m = metrics.cloud_mesh_metrics(cloud, v, f, coverage_distance=d, n_surface_samples=50_000, rng=0)
     # Covered: x <= 0.5 + d, i.e. 0.505 of the area; 4 standard errors of slack.
     assert m.coverage == pytest.approx(0.5 + d, abs=4 * m.coverage_stderr)
     assert 0 < m.coverage_stderr < 0.5 / np.sqrt(m.n_surface_samples) + 1e-12
@@ -171,6 +200,10 @@ def test_height_bands_see_the_missing_top():
     cov = [b.coverage for b in m.bands]
     assert cov[0] == 1.0 and cov[1] > 0.98 and cov[2] < 0.02 and cov[3] == 0.0
     assert sum(b.area_m2 for b in m.bands) == pytest.approx(1.0)
+    # Only the cloud's top row, at z = 0.5 exactly, opens the third band.
+    assert [b.n_points for b in m.bands][2:] == [len(g), 0]
+    assert sum(b.n_points for b in m.bands) == len(cloud)
+    assert m.bands[0].median == 0.0 and np.isnan(m.bands[3].median)
     assert m.bands[0].z_low == 0.0 and m.bands[-1].z_high == pytest.approx(1.0)
 
 
@@ -227,5 +260,8 @@ def test_validation_errors_say_what_arrived(sphere):
         metrics.MeshProximity(np.zeros((3, 3)), [[0.0, 1.0, 2.0]])
     with pytest.raises(ValueError, match=r"coverage_distance must be > 0 metres, got 0"):
         metrics.cloud_mesh_metrics(np.zeros((1, 3)), v, f, coverage_distance=0)
+    other = metrics.MeshProximity(*_plane())
+    with pytest.raises(ValueError, match=r"proximity was built for another mesh"):
+        metrics.cloud_mesh_metrics(np.zeros((1, 3)), v, f, proximity=other)
     with pytest.raises(ValueError, match=r"rng must be a numpy.random.Generator or an int seed"):
         metrics.sample_surface(v, f, 10, rng="seed")
