@@ -5,16 +5,19 @@ Everything here is pure math on arrays: the cloud and the mesh must already be i
 one frame (any frame, as long as it is the same for both); nothing reads files.
 
 Point-to-mesh distance is exact (closest point on the nearest triangle, after
-Ericson, *Real-Time Collision Detection*, 2005, sec. 5.1.5), found without
-testing every triangle: triangles are grouped by their bounding radius ``R``
-(largest centroid-to-vertex distance) into levels whose ``R`` differ by at most a
-factor two, each level with a cKDTree of centroids. For a point ``p`` whose ``k``
-nearest centroids in a level are tested exactly, every untested triangle of that
-level lies at least ``d_k - R_max`` away (``d_k``: distance to the ``k``-th
-centroid; triangle inequality), so once ``d_k - R_max >= best`` no untested
-triangle can be closer. Points that fail the test are re-queried with ``2k``
-until they pass or the whole level has been tested: the result is exact for
-every point, whatever the mesh, and only the running time depends on it.
+Ericson, *Real-Time Collision Detection*, 2005, sec. 5.1.5), found without testing
+every triangle. Each point first tests the triangles of its few nearest centroids
+(cKDTree); the best distance ``u`` so far bounds the answer. Every triangle within
+``u`` of the point has its axis-aligned bounding box overlapping the cube of
+half-side ``u`` around it, so testing the triangles registered in the grid cells
+that overlap that cube (pruned by box distance first) finds the nearest triangle
+exactly. Triangles are registered in uniform grids of cubic cells by the cells their
+box overlaps: small triangles in a fine grid, large ones (a turntable disk) in grids
+4, 16, ... times coarser; each grid has coarser copies for points far from the
+surface, whose cube would span too many fine cells. Bounding boxes stay tight for the
+long, thin triangles of CAD exports, for which centroid-ball bounds are loose. The
+result is exact whatever the mesh and the points; only the running time depends on
+them (most on the number of triangles within a point's distance of it).
 """
 
 from __future__ import annotations
@@ -34,6 +37,14 @@ logger = logging.getLogger(__name__)
 # Point-triangle pairs evaluated at once: bounds the temporaries of the exact
 # distance kernel to roughly 40 arrays of this many float64 (about 100 MB).
 _PAIRS_PER_BLOCK = 1 << 18
+
+# Pruning tests compare distances computed along different roads (a KD-tree, a box
+# gap, a cell index); where they tie in exact arithmetic, rounding must not prune
+# the true nearest triangle, so every pruning bound is widened by this factor.
+_SLACK = 1 + 1e-9
+
+# Grids with at most this many cells keep dense start/count tables (16 bytes a cell).
+_DENSE_CELLS = 1 << 22
 
 
 # --------------------------------------------------------------------------
@@ -206,6 +217,84 @@ class ClosestPoints:
     triangle_index: np.ndarray
 
 
+def _ragged(rows: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Expand (row, start, count) into flat (row, start + offset) pairs, offset < count."""
+    total = int(counts.sum())
+    row_rep = np.repeat(rows, counts)
+    offsets = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
+    return row_rep, np.repeat(starts, counts) + offsets
+
+
+def _unravel(offset: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    """Row-wise ``np.unravel_index`` of ``offset`` in boxes of shape ``dims`` (m, 3)."""
+    return np.column_stack(
+        [offset // (dims[:, 1] * dims[:, 2]), (offset // dims[:, 2]) % dims[:, 1], offset % dims[:, 2]]
+    )
+
+
+class _Grid:
+    """Uniform grid of cubic cells over the mesh's bounding box, each cell listing the
+    triangles (of a subset) whose bounding box overlaps it. Registrations are sorted
+    by cell key; a cell is found by binary search."""
+
+    def __init__(self, ids, lo, hi, cell_size, origin, top) -> None:
+        self.cell_size = float(cell_size)
+        self.origin = origin
+        dims = np.floor((top - origin) / self.cell_size) + 1
+        if float(np.prod(dims)) > 2.0**62:
+            raise ValueError(
+                f"cell_size {self.cell_size} m is too small for a mesh {top - origin} m across "
+                "(cell keys would overflow int64); use a larger cell_size"
+            )
+        self.dims = dims.astype(np.int64)
+        self.n_cells = int(self.dims.prod())
+        clo = self.cell_of(lo[ids])
+        span = self.cell_of(hi[ids]) - clo + 1
+        rep, offset = _ragged(np.arange(ids.size), np.zeros(ids.size, np.int64), span.prod(axis=1))
+        keys = self.key(clo[rep] + _unravel(offset, span[rep]))
+        order = np.argsort(keys, kind="stable")
+        self.reg_tri = ids[rep[order]]
+        # Bounding boxes in registration order: a cell's boxes are read contiguously.
+        self.reg_lo = np.ascontiguousarray(lo[self.reg_tri])
+        self.reg_hi = np.ascontiguousarray(hi[self.reg_tri])
+        self.cell_keys, self.cell_start, self.cell_count = np.unique(
+            keys[order], return_index=True, return_counts=True
+        )
+        # Small grids get dense tables: a lookup is then one gather, no binary search.
+        self.dense = self.n_cells <= _DENSE_CELLS
+        if self.dense:
+            self.dense_start = np.zeros(self.n_cells, dtype=np.int64)
+            self.dense_count = np.zeros(self.n_cells, dtype=np.int64)
+            self.dense_start[self.cell_keys] = self.cell_start
+            self.dense_count[self.cell_keys] = self.cell_count
+
+    def cell_of(self, xyz: np.ndarray) -> np.ndarray:
+        return np.floor((xyz - self.origin) / self.cell_size).astype(np.int64)
+
+    def key(self, ijk: np.ndarray) -> np.ndarray:
+        return (ijk[:, 0] * self.dims[1] + ijk[:, 1]) * self.dims[2] + ijk[:, 2]
+
+    def box(self, pts: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cells overlapping the cube of half-side ``u`` around each point, clipped to
+        the grid: (first cell (n, 3), shape (n, 3), cell count (n,))."""
+        lo = np.maximum(self.cell_of(pts - u[:, None]), 0)
+        hi = np.minimum(self.cell_of(pts + u[:, None]), self.dims - 1)
+        shape = np.maximum(hi - lo + 1, 0)
+        return lo, shape, shape.prod(axis=1)
+
+    def lookup(self, ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Start and count of each cell's registrations (count 0 for empty cells)."""
+        keys = self.key(ijk)
+        if self.dense:
+            return self.dense_start[keys], self.dense_count[keys]
+        if self.cell_keys.size == 0:
+            zeros = np.zeros(ijk.shape[0], dtype=np.int64)
+            return zeros, zeros
+        pos = np.minimum(np.searchsorted(self.cell_keys, keys), self.cell_keys.size - 1)
+        found = self.cell_keys[pos] == keys
+        return self.cell_start[pos], np.where(found, self.cell_count[pos], 0)
+
+
 class MeshProximity:
     """Exact point-to-mesh distance queries against one triangle mesh.
 
@@ -215,16 +304,35 @@ class MeshProximity:
     Args:
         vertices: (v, 3) float64, metres, any frame.
         faces: (f, 3) integer, rows of ``vertices``; zero-area triangles are allowed.
-        level_ratio: ratio of the largest to the smallest bounding radius inside one
-            level (> 1). Smaller ratios mean more trees but tighter bounds.
+        cell_size: finest cell edge in metres (None: the median over triangles of the
+            longest side of their bounding box).
+        max_cells_per_triangle: a triangle whose box spans more cells of a grid is
+            registered in a grid 4 times coarser.
+        max_box_cells: a point whose search cube spans more cells of a grid searches
+            a 4 times coarser copy of that grid instead.
 
     Raises:
-        ValueError: if the mesh is empty, malformed or non-finite.
+        ValueError: if the mesh is empty, malformed or non-finite, or an option is out
+            of range.
     """
 
-    def __init__(self, vertices: Any, faces: Any, *, level_ratio: float = 2.0) -> None:
-        if not level_ratio > 1.0:
-            raise ValueError(f"level_ratio must be > 1, got {level_ratio}")
+    _GRID_RATIO = 4
+    _SEED_K = 4
+
+    def __init__(
+        self,
+        vertices: Any,
+        faces: Any,
+        *,
+        cell_size: float | None = None,
+        max_cells_per_triangle: int = 64,
+        max_box_cells: int = 256,
+    ) -> None:
+        if max_cells_per_triangle < 1 or max_box_cells < 1:
+            raise ValueError(
+                "max_cells_per_triangle and max_box_cells must be >= 1, got "
+                f"{max_cells_per_triangle} and {max_box_cells}"
+            )
         self.vertices, self.faces = _as_mesh(vertices, faces)
         tri = self.vertices[self.faces]
         self._a = np.ascontiguousarray(tri[:, 0])
@@ -233,37 +341,53 @@ class MeshProximity:
         self._g_bb = _dot(self._ab, self._ab)
         self._g_bc = _dot(self._ab, self._ac)
         self._g_cc = _dot(self._ac, self._ac)
-        centroid = tri.mean(axis=1)
-        radius = np.sqrt(((tri - centroid[:, None]) ** 2).sum(axis=2)).max(axis=1)
-        positive = radius[radius > 0]
-        base = float(np.median(positive)) if positive.size else 1.0
-        # Level 0 holds R <= level_ratio * median(R); each further level a factor more.
-        with np.errstate(divide="ignore"):
-            lvl = np.ceil(np.log(np.maximum(radius, 1e-300) / (level_ratio * base)) / math.log(level_ratio))
-        lvl = np.clip(lvl, 0, None).astype(np.int64)
-        self._levels: list[tuple[cKDTree, np.ndarray, float]] = []
-        for value in np.unique(lvl):
-            ids = np.flatnonzero(lvl == value)
-            self._levels.append((cKDTree(centroid[ids]), ids, float(radius[ids].max())))
+        lo, hi = tri.min(axis=1), tri.max(axis=1)
+        extent = (hi - lo).max(axis=1)
+        if cell_size is None:
+            cell_size = float(np.median(extent[extent > 0])) if (extent > 0).any() else 1.0
+        if not (isinstance(cell_size, (int, float)) and cell_size > 0 and math.isfinite(cell_size)):
+            raise ValueError(f"cell_size must be a finite number > 0 metres, got {cell_size!r}")
+        self.cell_size = float(cell_size)
+        self.max_box_cells = int(max_box_cells)
+        origin = self.vertices.min(axis=0)
+        top = self.vertices.max(axis=0)
+        # Group triangles by the finest grid whose cells their box spans at most
+        # max_cells_per_triangle times (the span shrinks 4x per step, so few groups).
+        group = np.full(len(tri), -1, dtype=np.int64)
+        h, g = self.cell_size, 0
+        while (group < 0).any():
+            span = (np.floor((hi - origin) / h) - np.floor((lo - origin) / h) + 1).prod(axis=1)
+            group[(group < 0) & ((span <= max_cells_per_triangle) | (extent <= h))] = g
+            h, g = h * self._GRID_RATIO, g + 1
+        # Per group, a pyramid of grids 4x coarser each, up to one with at most
+        # max_box_cells cells: a point far from the surface searches a coarse copy.
+        self._pyramids: list[list[_Grid]] = []
+        for g in range(group.max() + 1):
+            ids = np.flatnonzero(group == g)
+            if ids.size == 0:
+                continue
+            h = self.cell_size * self._GRID_RATIO**g
+            pyramid = [_Grid(ids, lo, hi, h, origin, top)]
+            while pyramid[-1].n_cells > self.max_box_cells:
+                h *= self._GRID_RATIO
+                pyramid.append(_Grid(ids, lo, hi, h, origin, top))
+            self._pyramids.append(pyramid)
+        self._centroid_tree = cKDTree(tri.mean(axis=1))
         logger.debug(
-            "MeshProximity: %d triangles in %d levels (sizes %s)",
+            "MeshProximity: %d triangles; per group (cell m, triangles, registrations): %s",
             self.faces.shape[0],
-            len(self._levels),
-            [ids.size for _, ids, _ in self._levels],
+            [(p[0].cell_size, p[0].reg_tri.size) for p in self._pyramids],
         )
 
     @property
     def n_triangles(self) -> int:
         return int(self.faces.shape[0])
 
-    def query(
-        self, points: Any, *, k: int = 8, chunk_size: int = 100_000, workers: int = -1
-    ) -> ClosestPoints:
+    def query(self, points: Any, *, chunk_size: int = 50_000, workers: int = -1) -> ClosestPoints:
         """Exact unsigned distance of each point to the nearest triangle.
 
         Args:
             points: (n, 3) float64, metres, the mesh's frame.
-            k: centroids tested first per point and level (doubled where not sufficient).
             chunk_size: points processed together; bounds memory.
             workers: threads, each working on its own chunk (-1: all cores).
 
@@ -274,14 +398,11 @@ class MeshProximity:
             ValueError: if ``points`` is empty, not (n, 3), or holds NaN/inf.
         """
         pts = _as_points(points)
-        if k < 1:
-            raise ValueError(f"k must be >= 1, got {k}")
         if chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
         if workers != -1 and workers < 1:
             raise ValueError(f"workers must be -1 (all cores) or >= 1, got {workers}")
         n = pts.shape[0]
-        best = np.full(n, np.inf)
         best_sq = np.full(n, np.inf)
         best_tri = np.full(n, -1, dtype=np.int64)
         best_pt = np.empty((n, 3))
@@ -292,7 +413,7 @@ class MeshProximity:
         def run(sl: slice) -> None:
             # Chunks write disjoint slices, so threads need no lock; numpy and
             # cKDTree release the GIL in their inner loops.
-            self._query_chunk(pts[sl], best_sq[sl], best_tri[sl], best_pt[sl], k, 1)
+            self._query_chunk(pts[sl], best_sq[sl], best_tri[sl], best_pt[sl])
 
         if n_threads == 1:
             for sl in slices:
@@ -300,57 +421,75 @@ class MeshProximity:
         else:
             with concurrent.futures.ThreadPoolExecutor(max_workers=n_threads) as pool:
                 list(pool.map(run, slices))
-        np.sqrt(best_sq, out=best)
-        return ClosestPoints(distance=best, closest_points=best_pt, triangle_index=best_tri)
+        return ClosestPoints(distance=np.sqrt(best_sq), closest_points=best_pt, triangle_index=best_tri)
 
-    # All arrays passed in are views that are updated in place.
-    def _query_chunk(self, pts, best_sq, best_tri, best_pt, k0, workers) -> None:
-        for tree, ids, r_max in self._levels:
-            m = ids.size
-            todo = np.arange(pts.shape[0])
-            if tree is not self._levels[0][0]:
-                # Skip the level for points whose nearest centroid already proves
-                # that no triangle of this level can beat the current best.
-                d1, _ = tree.query(pts, k=1, workers=workers)
-                todo = np.flatnonzero(d1 - r_max < np.sqrt(best_sq))
-            k_done, k = 0, min(k0, m)
-            while todo.size:
-                dk, jk = tree.query(pts[todo], k=k, workers=workers)
-                dk = dk.reshape(todo.size, k)
-                jk = jk.reshape(todo.size, k)
-                # The first k_done candidates were tested in the previous round.
-                self._test_pairs(pts, todo, ids[jk[:, k_done:]], best_sq, best_tri, best_pt)
-                if k >= m:
+    # The best_* arrays are views of the caller's, updated in place.
+    def _query_chunk(self, pts, best_sq, best_tri, best_pt) -> None:
+        n = pts.shape[0]
+        # Seed: the triangles of the few nearest centroids, tested exactly. Their best
+        # distance bounds the answer, so the cubes of cells searched next are small.
+        n_seed = min(self._SEED_K, self.n_triangles)
+        _, seed = self._centroid_tree.query(pts, k=n_seed)
+        self._test_pairs(pts, np.repeat(np.arange(n), n_seed), seed.reshape(-1), best_sq, best_tri, best_pt)
+        for pyramid in self._pyramids:
+            u = np.sqrt(best_sq) * _SLACK
+            todo = np.arange(n)
+            for level, grid in enumerate(pyramid):
+                box_lo, shape, n_box = grid.box(pts[todo], u[todo])
+                # The coarsest grid has at most max_box_cells cells: it takes the rest.
+                fits = (n_box <= self.max_box_cells) | (level == len(pyramid) - 1)
+                rows = todo[fits & (n_box > 0)]
+                sel = np.flatnonzero(fits & (n_box > 0))
+                if rows.size:
+                    rep, offset = _ragged(sel, np.zeros(sel.size, np.int64), n_box[sel])
+                    cells = box_lo[rep] + _unravel(offset, shape[rep])
+                    # Only cells that meet the ball of radius u, not just its cube.
+                    corner = grid.origin + cells * grid.cell_size
+                    p = pts[todo[rep]]
+                    gap = np.maximum(corner - p, 0.0) + np.maximum(p - corner - grid.cell_size, 0.0)
+                    meet = np.einsum("ij,ij->i", gap, gap) <= u[todo[rep]] ** 2
+                    rep, cells = rep[meet], cells[meet]
+                    start, count = grid.lookup(cells)
+                    pair_rows, regs = _ragged(todo[rep], start, count)
+                    self._test_pairs(pts, pair_rows, regs, best_sq, best_tri, best_pt, grid)
+                todo = todo[~fits]
+                if todo.size == 0:
                     break
-                unresolved = dk[:, -1] - r_max < np.sqrt(best_sq[todo])
-                todo = todo[unresolved]
-                k_done, k = k, min(2 * k, m)
 
-    def _test_pairs(self, pts, rows, tri_ids, best_sq, best_tri, best_pt) -> None:
-        """Test points ``rows`` against their candidate triangles ``tri_ids`` (len(rows), k)."""
-        kk = tri_ids.shape[1]
-        step = max(1, _PAIRS_PER_BLOCK // kk)
-        for s in range(0, rows.size, step):
-            r = rows[s : s + step]
-            t = tri_ids[s : s + step].ravel()
-            p = np.repeat(pts[r], kk, axis=0)
+    def _test_pairs(self, pts, rows, tris, best_sq, best_tri, best_pt, grid: _Grid | None = None) -> None:
+        """Test flat (point row, triangle) pairs, grouped by row (each row's pairs
+        contiguous), and keep each point's nearest. With ``grid``, ``tris`` index its
+        registrations, and pairs whose triangle's bounding box lies farther than the
+        point's best distance so far are dropped before the exact test."""
+        for s in range(0, rows.size, _PAIRS_PER_BLOCK):
+            r = rows[s : s + _PAIRS_PER_BLOCK]
+            t = tris[s : s + _PAIRS_PER_BLOCK]
+            if grid is not None:
+                p = pts[r]
+                gap = np.maximum(grid.reg_lo[t] - p, 0.0) + np.maximum(p - grid.reg_hi[t], 0.0)
+                keep = np.einsum("ij,ij->i", gap, gap) <= best_sq[r] * (_SLACK * _SLACK)
+                r, t = r[keep], grid.reg_tri[t[keep]]
+                if r.size == 0:
+                    continue
+            p = pts[r]
             q = _closest_point(
                 p, self._a[t], self._ab[t], self._ac[t], self._g_bb[t], self._g_bc[t], self._g_cc[t]
             )
-            d2 = ((q - p) ** 2).sum(axis=1).reshape(r.size, kk)
-            j = np.argmin(d2, axis=1)
-            dmin = d2[np.arange(r.size), j]
-            better = dmin < best_sq[r]
-            rb = r[better]
-            best_sq[rb] = dmin[better]
-            flat = np.arange(r.size)[better] * kk + j[better]
-            best_tri[rb] = t[flat]
-            best_pt[rb] = q[flat]
+            d2 = ((q - p) ** 2).sum(axis=1)
+            # Per point (pairs are grouped by point), the first pair at the minimum.
+            starts = np.flatnonzero(np.r_[True, r[1:] != r[:-1]])
+            seg_min = np.minimum.reduceat(d2, starts)
+            at_min = np.flatnonzero(d2 == np.repeat(seg_min, np.diff(np.r_[starts, r.size])))
+            first = at_min[np.r_[True, r[at_min][1:] != r[at_min][:-1]]]
+            rr, dd = r[first], d2[first]
+            better = dd < best_sq[rr]
+            rb, fb = rr[better], first[better]
+            best_sq[rb] = dd[better]
+            best_tri[rb] = t[fb]
+            best_pt[rb] = q[fb]
 
 
-def point_to_mesh_distance(
-    points: Any, vertices: Any, faces: Any, *, k: int = 8, chunk_size: int = 100_000
-) -> ClosestPoints:
+def point_to_mesh_distance(points: Any, vertices: Any, faces: Any, *, chunk_size: int = 50_000) -> ClosestPoints:
     """Exact unsigned distance of every point to a triangle mesh.
 
     Convenience wrapper of :class:`MeshProximity` for one query; build a
@@ -360,7 +499,6 @@ def point_to_mesh_distance(
         points: (n, 3) float64, metres, the same frame as ``vertices``.
         vertices: (v, 3) float64, metres.
         faces: (f, 3) integer, rows of ``vertices``.
-        k: centroids tested first per point (doubled where not provably sufficient).
         chunk_size: points processed together; bounds memory.
 
     Returns:
@@ -370,7 +508,7 @@ def point_to_mesh_distance(
         ValueError: empty or non-finite cloud; empty or malformed mesh.
     """
     pts = _as_points(points)
-    return MeshProximity(vertices, faces).query(pts, k=k, chunk_size=chunk_size)
+    return MeshProximity(vertices, faces).query(pts, chunk_size=chunk_size)
 
 
 # --------------------------------------------------------------------------

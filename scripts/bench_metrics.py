@@ -30,7 +30,6 @@ def main() -> None:
     parser.add_argument("--subdivisions", type=int, default=6)
     parser.add_argument("--noise", type=float, default=0.002, help="metres")
     parser.add_argument("--mesh", default=None, help="a mesh file instead of the icosphere")
-    parser.add_argument("--k", type=int, default=6)
     args = parser.parse_args()
 
     if args.mesh:
@@ -42,7 +41,7 @@ def main() -> None:
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces)
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    print(f"mesh: {label}: {len(faces):,} triangles; cores: {cores}; k={args.k}")
+    print(f"mesh: {label}: {len(faces):,} triangles; cores: {cores}")
 
     t0 = time.perf_counter()
     prox = metrics.MeshProximity(vertices, faces)
@@ -55,7 +54,7 @@ def main() -> None:
         times = []
         for _ in range(args.repeats):
             t0 = time.perf_counter()
-            result = prox.query(points, k=args.k)
+            result = prox.query(points)
             times.append(time.perf_counter() - t0)
         med = statistics.median(times)
         print(

@@ -65,7 +65,7 @@ def test_random_mesh_matches_brute_force_including_edges_and_vertices():
     scattered = rng.normal(size=(500, 3)) * 0.2
     far = rng.normal(size=(20, 3)) * 3.0
     pts = np.vstack([near_vertices, near_edges, on_edges, scattered, far, v])
-    got = metrics.point_to_mesh_distance(pts, v, f, k=1)
+    got = metrics.point_to_mesh_distance(pts, v, f, chunk_size=100)
     want = _brute_force_distance(pts, v, f)
     np.testing.assert_allclose(got.distance, want, rtol=0, atol=1e-12)
     # The returned closest point and triangle are consistent with the distance.
@@ -78,17 +78,31 @@ def test_random_mesh_matches_brute_force_including_edges_and_vertices():
         assert one[0] == pytest.approx(got.distance[i], abs=1e-12)
 
 
-def test_mixed_triangle_sizes_use_several_levels_and_stay_exact():
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},  # defaults: the big triangle sits in a coarser grid
+        {"max_box_cells": 1},  # every point searches the coarsest copies
+        {"max_cells_per_triangle": 1},  # many grid levels
+        {"cell_size": 0.002},  # fine grid: many cells per triangle and per point
+        {"cell_size": 5.0},  # one cell holds everything
+        {"max_box_cells": 8, "cell_size": 0.001},  # deep pyramids
+    ],
+)
+def test_mixed_triangle_sizes_are_exact_on_every_search_path(options):
     rng = np.random.default_rng(3)
     small = trimesh.creation.icosphere(subdivisions=3, radius=0.05)
     big_v = np.array([[-2.0, -2.0, 0.3], [2.0, -2.0, 0.3], [0.0, 2.0, 0.3]])
     v = np.vstack([small.vertices, big_v])
-    f = np.vstack([small.faces, [[len(small.vertices), len(small.vertices) + 1, len(small.vertices) + 2]]])
-    prox = metrics.MeshProximity(v, f)
-    assert len(prox._levels) >= 2
-    pts = rng.normal(size=(2000, 3)) * 0.2
-    got = prox.query(pts, k=2, chunk_size=300)
+    n = len(small.vertices)
+    f = np.vstack([small.faces, [[n, n + 1, n + 2]]])
+    prox = metrics.MeshProximity(v, f, **options)
+    near, _ = metrics.sample_surface(v[:n], small.faces, 1000, rng=1)
+    pts = np.vstack([rng.normal(size=(1000, 3)) * 0.2, near + rng.normal(size=near.shape) * 0.003])
+    got = prox.query(pts, chunk_size=300)
     np.testing.assert_allclose(got.distance, _brute_force_distance(pts, v, f), atol=1e-12)
+    if not options:
+        assert len(prox._pyramids) >= 2  # the big triangle really sits in a coarser grid
 
 
 def test_degenerate_triangles_are_measured_as_segments():
