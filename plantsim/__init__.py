@@ -54,6 +54,9 @@ _LAZY = {
     "cloud_mesh_metrics": "plantsim.metrics",
     "extract_traits": "plantsim.traits",
     "traits_from_mesh": "plantsim.traits",
+    "Sweep": "plantsim.study",
+    "run_study": "plantsim.study",
+    "pareto_front": "plantsim.study",
 }
 
 

@@ -149,7 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
     scan.set_defaults(func=cmd_scan)
 
     from plantsim.cli_rig import add_rig_commands
+    from plantsim.cli_study import add_study_command
 
+    add_study_command(sub)
     add_rig_commands(sub)
     return parser
 
