@@ -8,7 +8,8 @@ core, each casting on one thread), each run being :func:`plantsim.pipeline.run_s
 followed by :func:`plantsim.evaluate.evaluate_scan`. Every run gives one flat row:
 its settings, wall time, CPU time, simulated rig time and every metric and trait
 error; :func:`rows_to_csv` writes them, :func:`pareto_front` finds the runs no other
-run beats on both error and time, :func:`plot_error_vs_time` draws them.
+run beats on both error and time, :func:`plot_error_vs_time` draws them (one front
+per plant and sensor: the ideal sensor is the reference, not a choice).
 
 Wall time is the scan's own (load, build, cast, reconstruct), without the
 evaluation; it is measured while other runs share the machine, so on a loaded
@@ -414,8 +415,8 @@ def plot_error_vs_time(rows: Sequence[Mapping[str, Any]], *, error: str = "chamf
                        time: str = "wall_time_s", setting_names: Sequence[str] = ("step_deg",),
                        title: str | None = None) -> bytes:
     """A PNG of error against run time, one series per plant and setting
-    combination, each point labelled with its step; each plant's Pareto front is
-    ringed and joined (fronts are not compared across plants).
+    combination, each point labelled with its step; the Pareto front of each plant
+    and sensor (ideal or realistic) is ringed and joined.
 
     Args:
         rows: study rows (failed runs are left out).
@@ -442,10 +443,12 @@ def plot_error_vs_time(rows: Sequence[Mapping[str, Any]], *, error: str = "chamf
     scale, unit = (1e3, " [mm]") if error.endswith("_m") else (1.0, "")
     e = np.array([float(r[error]) for r in ok]) * scale
     t = np.array([float(r[time]) for r in ok])
-    plants = np.array([str(r["plant"]) for r in ok])
+    # One front per plant and sensor: the ideal sensor is a reference, not a
+    # setting a rig can choose, so it must not push every realistic run off the front.
+    groups = np.array([f"{r['plant']}|{bool(r.get('ideal'))}" for r in ok])
     front = np.zeros(len(ok), dtype=bool)
-    for plant in dict.fromkeys(plants):
-        mine = np.flatnonzero(plants == plant)
+    for group in dict.fromkeys(groups):
+        mine = np.flatnonzero(groups == group)
         front[mine] = pareto_front(e[mine], t[mine])
     fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
     series: dict[str, list[int]] = {}
@@ -458,12 +461,12 @@ def plot_error_vs_time(rows: Sequence[Mapping[str, Any]], *, error: str = "chamf
             if ok[i].get("step_deg") is not None:
                 ax.annotate(f"{float(ok[i]['step_deg']):g}°", (t[i], e[i]), textcoords="offset points",
                             xytext=(4, 4), fontsize=7)
-    for k, plant in enumerate(dict.fromkeys(plants)):
-        f = np.flatnonzero(front & (plants == plant))
+    for k, group in enumerate(dict.fromkeys(groups)):
+        f = np.flatnonzero(front & (groups == group))
         f = f[np.argsort(t[f])]
         ax.plot(t[f], e[f], linestyle="--", color="black", linewidth=1, zorder=0)
         ax.scatter(t[f], e[f], s=140, facecolors="none", edgecolors="black", linewidths=1.2,
-                   label="Pareto front (min error, min time)" if k == 0 else None)
+                   label="Pareto front of each sensor (min error, min time)" if k == 0 else None)
     ax.set_xscale("log")
     if np.all(e[np.isfinite(e)] > 0):
         ax.set_yscale("log")
