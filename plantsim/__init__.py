@@ -25,7 +25,7 @@ from plantsim.errors import (
 )
 from plantsim.io import CLASSIFICATION, EXPORTERS, read_cloud, write_cloud
 from plantsim.mesh import PlantMesh, load_plant, plant_from_arrays
-from plantsim.pipeline import ScanResult, run_scan, write_result
+from plantsim.pipeline import ScanResult, run_scan, simulated_rig_time_s, with_evaluation, write_result
 from plantsim.procedural import (
     PART_EAR,
     PART_LEAF,
@@ -49,3 +49,25 @@ from plantsim.transforms import apply_T, invert_T, make_T
 from plantsim.turntable import ServoTurntable, SimulatedTurntable, Turntable
 
 __version__ = "0.1.0"
+
+# Names whose modules import scipy's heavier parts (or matplotlib): loaded on first
+# use, so that ``plantsim scan`` without ``--evaluate`` does not pay for them.
+_LAZY = {
+    "Evaluation": "plantsim.evaluate",
+    "EvaluationOptions": "plantsim.evaluate",
+    "evaluate_scan": "plantsim.evaluate",
+    "cloud_mesh_metrics": "plantsim.metrics",
+    "extract_traits": "plantsim.traits",
+    "traits_from_mesh": "plantsim.traits",
+    "Sweep": "plantsim.study",
+    "run_study": "plantsim.study",
+    "pareto_front": "plantsim.study",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'plantsim' has no attribute {name!r}")

@@ -75,12 +75,33 @@ def cmd_scan(args: argparse.Namespace) -> int:
         result = run_scan(config, progress=progress)
     finally:
         close()
+    if args.evaluate:
+        from plantsim.pipeline import with_evaluation
+
+        result = with_evaluation(result)
     path = write_result(result)
     plant_points = result.cloud.counts_by_class()["plant"]
     print(f"wrote {len(result.cloud):,} points ({plant_points:,} on the plant) from "
           f"{result.raw.n_lines} lines x {result.raw.n_beams} beams to {path} in "
           f"{time.perf_counter() - t0:.2f} s")
+    if result.evaluation is not None:
+        print(_evaluation_line(result.evaluation))
     return 0
+
+
+def _evaluation_line(evaluation) -> str:
+    """One line of the evaluation for the terminal (the sidecar has it all)."""
+    m = evaluation.metrics
+    if m is None:
+        return "evaluation: no point on the plant"
+    text = (f"evaluation: cloud->mesh median {m.median * 1e3:.3g} mm, p95 {m.p95 * 1e3:.3g} mm; "
+            f"Chamfer {m.chamfer * 1e3:.3g} mm; coverage {m.coverage:.1%} within "
+            f"{m.coverage_distance * 1e3:g} mm")
+    if evaluation.traits is not None:
+        parts = [f"{e.trait.removesuffix('_m')} {e.relative_error:.1%}" for e in evaluation.traits.errors
+                 if e.trait in ("height_m", "stem_diameter_m", "mean_stem_distance_m", "leaf_width_m")]
+        text += "; trait errors: " + ", ".join(parts)
+    return text
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -120,10 +141,17 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--rpm", type=float, help="continuous mode's turntable speed, rpm (default 1)")
     scan.add_argument("--no-deskew", action="store_true",
                       help="reconstruct with one angle per line, as a naive rig does")
+    scan.add_argument("--evaluate", action="store_true",
+                      help="measure the scan against its truth: the plant points' distance to the "
+                           "placed mesh, Chamfer distance, coverage and, when an exact-traits file "
+                           "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh, "
+                           "trait errors; written to the sidecar's \"evaluation\" and timings_s")
     scan.set_defaults(func=cmd_scan)
 
     from plantsim.cli_rig import add_rig_commands
+    from plantsim.cli_study import add_study_command
 
+    add_study_command(sub)
     add_rig_commands(sub)
     return parser
 

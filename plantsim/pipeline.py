@@ -11,7 +11,7 @@ import logging
 import platform
 import time
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -23,6 +23,9 @@ from plantsim.resources import bundled_plant_path
 from plantsim.scan import RawScan, RayCaster, step_and_shoot
 from plantsim.scene import Scene, build_scene
 from plantsim.sensor_model import FootprintCaster, realistic_step_and_shoot
+
+if TYPE_CHECKING:  # the evaluation pulls in scipy: imported only when asked for
+    from plantsim.evaluate import Evaluation, EvaluationOptions
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +42,7 @@ class ScanResult:
     raw: RawScan
     cloud: PointCloud
     timings_s: dict
+    evaluation: "Evaluation | None" = None
 
 
 def library_versions() -> dict:
@@ -129,9 +133,39 @@ def _dynamic_scan(config: RunConfig, plant: PlantMesh, rng: np.random.Generator,
     return dscene.scene, result.raw
 
 
+def with_evaluation(result: ScanResult, *, options: "EvaluationOptions | None" = None) -> ScanResult:
+    """The result with its own error: plant points against the placed mesh and,
+    when an exact-traits file sits beside the mesh, traits against it.
+
+    The evaluation's wall time is added to ``timings_s`` as ``evaluate``.
+
+    Args:
+      result: a scan.
+      options: how to measure (None: the defaults of
+        :class:`plantsim.evaluate.EvaluationOptions`).
+
+    Returns:
+      A new ScanResult carrying ``evaluation``.
+    """
+    from plantsim.evaluate import EvaluationOptions, evaluate_scan
+
+    evaluation = evaluate_scan(result, options=options or EvaluationOptions())
+    timings = {**result.timings_s, "evaluate": evaluation.time_s}
+    return dataclasses.replace(result, evaluation=evaluation, timings_s=timings)
+
+
+def simulated_rig_time_s(result: ScanResult) -> float:
+    """How long the simulated rig took, seconds: the last scan line's time stamp
+    plus one scan period (the time a real acquisition would last, not the
+    simulator's wall time)."""
+    lidar = result.config.lidar
+    last_line_t0 = float(result.raw.time_s[-1, 0] - lidar.beam_time_offsets_s()[0])
+    return last_line_t0 + lidar.scan_period_s
+
+
 def sidecar(result: ScanResult) -> dict:
     """The sidecar JSON's content for a result."""
-    return {
+    out = {
         "plantsim_sidecar": 1,
         "output": result.config.output.path,
         "config": result.config.to_dict(),
@@ -148,7 +182,11 @@ def sidecar(result: ScanResult) -> dict:
                    "points_written_by_class": result.cloud.counts_by_class()},
         "classification_codes": {"plant": 4, "turntable": 64, "rig": 65},
         "timings_s": result.timings_s,
+        "simulated_rig_time_s": simulated_rig_time_s(result),
     }
+    if result.evaluation is not None:
+        out["evaluation"] = result.evaluation.to_dict()
+    return out
 
 
 def write_result(result: ScanResult, path: str | Path | None = None) -> Path:

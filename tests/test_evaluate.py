@@ -1,0 +1,131 @@
+"""plantsim.evaluate and ``plantsim scan --evaluate``: every scan reports its own error."""
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from plantsim import evaluate
+from plantsim.cli import main
+from plantsim.mesh import plant_from_arrays
+from plantsim.transforms import make_T, rot_x, rot_z
+
+STALK_TRUTH = {"height_m": 0.2, "stems": [{"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 0.03}]}
+
+
+@pytest.fixture
+def stalk(tmp_path):
+    """A 30 x 30 x 200 mm box, with an exact-traits file beside it when asked."""
+    box = trimesh.creation.box(extents=[0.03, 0.03, 0.2])
+    path = tmp_path / "stalk.stl"
+    path.write_bytes(box.export(file_type="stl"))
+    return path
+
+
+def test_scan_without_evaluate_has_no_evaluation_and_imports_no_metrics(tmp_path, stalk):
+    # The plain scan must stay as fast as before: scipy's metrics and traits are not imported.
+    code = ("import sys; from plantsim.cli import main; "
+            f"main(['scan', {str(stalk)!r}, '-o', {str(tmp_path / 'a.las')!r}, '--step-deg', '45']); "
+            "print(sorted(m for m in ('plantsim.evaluate', 'plantsim.metrics', 'plantsim.traits') "
+            "if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+    meta = json.loads((tmp_path / "a.las.json").read_text())
+    assert "evaluation" not in meta and "evaluate" not in meta["timings_s"]
+    # 8 lines at the default 0.5 s a step; the last line takes one 0.1 s scan period.
+    assert meta["simulated_rig_time_s"] == pytest.approx(7 * 0.5 + 0.1)
+
+
+def test_scan_evaluate_adds_metrics_and_time_to_the_sidecar(tmp_path, stalk, capsys):
+    out = tmp_path / "ev.las"
+    assert main(["scan", str(stalk), "-o", str(out), "--step-deg", "30", "--ideal", "--evaluate"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("wrote ") and lines[1].startswith("evaluation: cloud->mesh median ")
+    meta = json.loads((tmp_path / "ev.las.json").read_text())
+    ev = meta["evaluation"]
+    assert ev["n_points"] == meta["counts"]["points_written_by_class"]["plant"] > 0
+    # An ideal scan's points lie on the mesh: the exact distance is rounding only.
+    assert ev["max"] < 1e-6
+    assert 0 < ev["coverage"] < 1 and ev["chamfer"] > 0
+    assert {"median", "p95", "p99", "mesh_to_cloud_mean", "bands"} <= set(ev)
+    assert ev["time_s"] == meta["timings_s"]["evaluate"] > 0
+    assert "traits" not in ev  # no stalk.traits.json beside the mesh
+
+
+def test_scan_evaluate_compares_traits_when_a_traits_file_sits_beside_the_mesh(tmp_path, stalk):
+    (tmp_path / "stalk.traits.json").write_text(json.dumps(STALK_TRUTH))
+    assert main(["scan", str(stalk), "-o", str(tmp_path / "ev.ply"), "--step-deg", "10", "--ideal",
+                 "--evaluate"]) == 0
+    traits = json.loads((tmp_path / "ev.ply.json").read_text())["evaluation"]["traits"]
+    assert traits["truth"] == str(tmp_path / "stalk.traits.json")
+    assert traits["n_stems"] == [1, 1]
+    height = traits["errors"]["height_m"]
+    assert height["reference"] == 0.2 and height["relative_error"] < 0.02
+    # A 30 mm square read as a circle: the fit lies between the inscribed and circumscribed.
+    assert 0.03 <= traits["errors"]["stem_diameter_m"]["estimate"] <= 0.03 * math.sqrt(2)
+
+
+def test_truth_traits_path_finds_both_spellings(tmp_path):
+    mesh = tmp_path / "p.obj"
+    assert evaluate.truth_traits_path(mesh) is None
+    (tmp_path / "p.obj.traits.json").write_text("{}")
+    assert evaluate.truth_traits_path(mesh) == tmp_path / "p.obj.traits.json"
+    (tmp_path / "p.traits.json").write_text("{}")
+    assert evaluate.truth_traits_path(mesh) == tmp_path / "p.traits.json"
+
+
+def test_bundled_plants_have_their_traits_found():
+    from plantsim.resources import bundled_plant_path
+
+    for name in ("maize", "wheat"):
+        assert evaluate.truth_traits_path(bundled_plant_path(name)).name == f"{name}.traits.json"
+
+
+def test_truth_is_moved_with_the_placement():
+    truth = {"height_m": 0.5, "stems": [{"index": 0, "base_xy_m": [0.01, 0.0], "diameter_m": 0.004}],
+             "leaves": [{"index": 0, "length_m": 0.2, "width_m": 0.01}]}
+    T = make_T(rot_z(math.pi / 2), [0.1, 0.2, 0.003])
+    moved = evaluate.truth_in_turntable(truth, T)
+    assert moved["stems"][0]["base_xy_m"] == pytest.approx([0.1, 0.21])
+    assert moved["height_m"] == 0.5  # a length: the placement does not change it
+    assert moved["leaves"] == truth["leaves"]
+    assert truth["stems"][0]["base_xy_m"] == [0.01, 0.0]  # the input is left alone
+    with pytest.raises(ValueError, match=r"T_turntable_mesh must keep the mesh's z axis up"):
+        evaluate.truth_in_turntable(truth, make_T(rot_x(math.pi / 2)))
+    with pytest.raises(ValueError, match=r"T_turntable_mesh must have shape \(4, 4\), got \(3, 3\)"):
+        evaluate.truth_in_turntable(truth, np.eye(3))
+
+
+def test_evaluate_cloud_on_an_analytic_box_and_with_no_points(box_mesh, tmp_path):
+    v, f = box_mesh
+    plant = plant_from_arrays(v, f, placement="none")
+    corners = v[:4]  # vertices lie on the mesh: distance 0
+    ev = evaluate.evaluate_cloud(corners + [0.0, 0.0, 0.001] * (corners[:, 2:] > 0), plant,
+                                 options=evaluate.EvaluationOptions(n_surface_samples=1000))
+    assert ev.n_points == 4 and ev.metrics.n_points == 4
+    assert ev.metrics.max == pytest.approx(0.001, abs=1e-12)
+    assert ev.traits is None and ev.truth_path is None
+    empty = evaluate.evaluate_cloud(np.zeros((0, 3)), plant)
+    assert empty.n_points == 0 and empty.metrics is None
+    assert json.loads(json.dumps(empty.to_dict()))["n_points"] == 0
+    with pytest.raises(FileNotFoundError, match=r"truth_path: traits file not found: .*nope.json"):
+        evaluate.evaluate_cloud(corners, plant, truth_path=tmp_path / "nope.json")
+    (tmp_path / "bad.json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"truth_path: .*bad.json is not valid JSON"):
+        evaluate.evaluate_cloud(corners, plant, truth_path=tmp_path / "bad.json")
+
+
+def test_evaluation_options_are_validated():
+    with pytest.raises(ValueError, match=r"coverage_distance must be a finite number > 0 metres, got 0"):
+        evaluate.EvaluationOptions(coverage_distance=0)
+    with pytest.raises(ValueError, match=r"n_surface_samples must be an integer >= 1, got 0"):
+        evaluate.EvaluationOptions(n_surface_samples=0)
+    with pytest.raises(ValueError, match=r"seed must be a non-negative integer, got -1"):
+        evaluate.EvaluationOptions(seed=-1)
+    with pytest.raises(TypeError):
+        evaluate.EvaluationOptions(0.002)  # keyword-only
