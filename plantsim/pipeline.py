@@ -102,6 +102,12 @@ def run_scan(config: RunConfig, *, progress: Progress | None = None) -> ScanResu
                                            rng=rng, caster=caster, progress=progress)
         timings["scan"] = time.perf_counter() - t
 
+    return finish_scan(config, plant, scene, raw, timings)
+
+
+def finish_scan(config: RunConfig, plant: PlantMesh, scene: Scene, raw: RawScan,
+                timings: dict) -> ScanResult:
+    """Reconstructs a raw scan (plant points only if configured) into a :class:`ScanResult`."""
     t = time.perf_counter()
     cloud = reconstruct(raw)
     if config.output.plant_only:

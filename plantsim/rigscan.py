@@ -22,9 +22,7 @@ from pathlib import Path
 
 from plantsim.config import RunConfig
 from plantsim.io import check_output_path, write_cloud
-from plantsim.journal import Journal
-from plantsim.pipeline import ScanResult, load_configured_plant, sidecar
-from plantsim.reconstruct import reconstruct
+from plantsim.pipeline import ScanResult, finish_scan, load_configured_plant, sidecar
 from plantsim.scene import build_scene
 from plantsim.session import LineSource, Progress, SimulatedLidar, run_session
 from plantsim.turntable import Turntable
@@ -108,12 +106,7 @@ def run_rig_scan(config: RunConfig, turntable: Turntable, *, resume: bool = Fals
                                identity=scan_identity(config, plant, turntable, source),
                                resume=resume, settle_s=settle_s, progress=progress)
     timings["scan"] = time.perf_counter() - t
-    t = time.perf_counter()
-    cloud = reconstruct(raw)
-    if config.output.plant_only:
-        cloud = cloud.plant_only()
-    timings["reconstruct"] = time.perf_counter() - t
-    result = ScanResult(config=config, plant=plant, scene=scene, raw=raw, cloud=cloud, timings_s=timings)
+    result = finish_scan(config, plant, scene, raw, timings)
     return RigScanResult(result=result, rig={"turntable": turntable.describe(), "lidar": source.describe()},
                          journal_path=journal_path, lines_resumed=journal.lines_resumed)
 

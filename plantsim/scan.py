@@ -237,20 +237,36 @@ def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *,
             f"step_time_s ({schedule.step_time_s} s) must be at least the sensor's scan period "
             f"({lidar.scan_period_s} s): one line must fit in one step")
     caster = caster or RayCaster(scene, lidar)
-    angles = schedule.angles_rad()
-    dist, geom = caster.cast(angles, progress=progress)
+    dist, geom = caster.cast(schedule.angles_rad(), progress=progress)
     range_m, status = gate_ranges(dist, lidar)
+    return kinematic_raw_scan(scene, lidar, schedule, range_m=range_m, status=status, geom_id=geom)
+
+
+def kinematic_raw_scan(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, range_m: np.ndarray,
+                       status: np.ndarray, geom_id: np.ndarray,
+                       intensity: np.ndarray | None = None) -> RawScan:
+    """The raw record of a kinematic step-and-shoot scan from its per-beam results.
+
+    The table is exactly at each commanded angle for the whole line; line j
+    starts at ``j * step_time_s`` and its beams follow the sensor's timing.
+
+    Args:
+      range_m, status, geom_id: (n_lines, n_beams) per-beam results.
+      intensity: optional (n_lines, n_beams) float.
+    """
+    angles = schedule.angles_rad()
     line_t0 = schedule.step_time_s * np.arange(schedule.n_lines)
     time_s = line_t0[:, None] + lidar.beam_time_offsets_s()[None, :]
     angle_per_beam = np.broadcast_to(angles[:, None], range_m.shape)
     return RawScan(
         turntable_angle_rad=angle_per_beam,
         true_turntable_angle_rad=angle_per_beam,
-        beam_angle_rad=caster.beam_angles_rad,
+        beam_angle_rad=lidar.beam_angles_rad(),
         range_m=range_m,
         status=status,
-        hit_class=scene.geom_class[geom],
-        geom_id=geom,
+        hit_class=scene.geom_class[geom_id],
+        geom_id=geom_id,
         time_s=time_s,
         T_base_lidar=scene.T_base_lidar,
+        intensity=intensity,
     )

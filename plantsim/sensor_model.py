@@ -36,7 +36,7 @@ import numpy as np
 
 from plantsim.beam import (SubrayPattern, coplanar_probes, combine_footprint, subray_pattern,
                            subrays_lidar)
-from plantsim.scan import (AXIS_TRAP_OFFSET_M, Progress, RawScan, StepScan,
+from plantsim.scan import (AXIS_TRAP_OFFSET_M, Progress, RawScan, StepScan, kinematic_raw_scan,
                            ray_origins_dirs_base)
 from plantsim.scene import LIDAR_GEOMGROUP, HitClass, Scene
 from plantsim.sensor import BeamStatus, LidarSpec
@@ -395,19 +395,5 @@ def realistic_step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan,
         log.warning("%d beams returned nearer than %s's range_min_m (%g m), more than gave a "
                     "range: move the sensor back ([rig] lidar_distance_m = %g m now)", too_near,
                     lidar.name, lidar.range_min_m, scene.rig.lidar_distance_m)
-    line_t0 = schedule.step_time_s * np.arange(schedule.n_lines)
-    time_s = line_t0[:, None] + lidar.beam_time_offsets_s()[None, :]
-    angle_per_beam = np.broadcast_to(angles[:, None], range_m.shape)
-    geom = fp["geom_id"]
-    return RawScan(
-        turntable_angle_rad=angle_per_beam,
-        true_turntable_angle_rad=angle_per_beam,
-        beam_angle_rad=caster.beam_angles_rad,
-        range_m=range_m,
-        status=status,
-        hit_class=scene.geom_class[geom],
-        geom_id=geom,
-        time_s=time_s,
-        T_base_lidar=scene.T_base_lidar,
-        intensity=intensity,
-    )
+    return kinematic_raw_scan(scene, lidar, schedule, range_m=range_m, status=status,
+                              geom_id=fp["geom_id"], intensity=intensity)
