@@ -303,3 +303,16 @@ def test_truth_aggregates_follow_one_definition_and_disagreement_is_logged(caplo
         t = traits.traits_from_truth(truth)
     assert t.leaf_width_m == 0.01
     assert "truth['leaf_width_m'] = 0.009 differs from 0.01" in caplog.text
+
+
+def test_traits_from_mesh_of_a_stem_with_a_flat_leaf():
+    cyl = trimesh.creation.cylinder(radius=0.006, height=0.4, sections=48)
+    cyl.apply_translation([0.0, 0.0, 0.2])
+    leaf = trimesh.creation.box(extents=(0.25, 0.02, 0.001))
+    leaf.apply_translation([0.006 + 0.125, 0.0, 0.2])
+    mesh = trimesh.util.concatenate([cyl, leaf])
+    t = traits.traits_from_mesh(mesh.vertices, mesh.faces, n_samples=100_000, rng=0)
+    assert len(t.stems) == 1 and len(t.leaves) == 1
+    # The stem's removal cylinder (radius + 3 mm margin) takes the leaf's first 3 mm.
+    assert t.leaf_length_m == pytest.approx(0.25 - 0.003, abs=0.005)
+    assert t.leaf_width_m == pytest.approx(0.02, rel=0.02)
