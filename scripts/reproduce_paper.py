@@ -1,0 +1,246 @@
+"""Reproduce the paper's Tables I and II with plantsim, automatically.
+
+    PYTHONPATH=. python scripts/reproduce_paper.py ../shared/seed-rig [-o docs/paper_reproduction.md]
+
+Scans the original tool's two meshes (``wheat.stl``, ``maize.stl``) with the
+original rig's geometry (``scripts/validate_seed_rig.py``: LiDAR 0.3575 m from
+the axis and 0.105 m above the disk top, 726 beams over +-130 degrees, no noise, as
+the Gazebo sensor had) at 1 and 0.5 degrees, extracts the paper's parameters from
+each cloud with :func:`plantsim.traits.extract_traits` (no hand measurement), and
+prints our table beside the paper's (``../shared/seed-rig/README.md``).
+
+Two references: the paper's R, hand-measured in CloudCompare, and ours, the same
+extraction run on 300,000 exact samples of the mesh surface
+(:func:`plantsim.traits.traits_from_mesh`; its height is the mesh's top vertex).
+Our S is compared against both. Parameters:
+
+- wheat: stem diameter (mean of the stems' circle fits at 15-25 mm above the disk
+  top), distance between stems (mean over all pairs of stem axes; the mean
+  nearest-neighbour distance is printed too), plant height (top above the disk top);
+- maize: plant height, stem diameter, leaf width (the widest detected leaf, the
+  library's definition; and the median over detected leaves, closer to the one
+  leaf a person picks).
+
+The seed-rig files carry no licence: this script reads them where they are and
+copies nothing. Writes the Markdown table (with a sentence on each difference)
+to ``-o`` when given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from validate_seed_rig import SEED_LIDAR, SEED_OUTPUT_DISK_TOP_Z, SEED_RIG, T_TURNTABLE_SEEDMESH  # noqa: E402
+
+from plantsim.config import PlantOptions, RunConfig  # noqa: E402
+from plantsim.pipeline import run_scan  # noqa: E402
+from plantsim.scan import StepScan  # noqa: E402
+from plantsim.traits import PlantTraits, extract_traits, traits_from_mesh  # noqa: E402
+
+STEPS_DEG = (1.0, 0.5)
+
+# The paper's Tables I and II (seed-rig README): R and S in mm.
+PAPER = {
+    ("wheat", "stem diameter"): (4.00, 5.00, 4.20),
+    ("wheat", "distance between stems"): (42.00, 47.00, 42.0),
+    ("wheat", "plant height"): (555.00, 442.00, 490.0),
+    ("maize", "plant height"): (417.00, 411.00, 412.69),
+    ("maize", "stem diameter"): (12.50, 12.00, 12.00),
+    ("maize", "leaf width"): (18.60, 15.78, 16.00),
+}
+
+
+def median_leaf_width(traits: PlantTraits) -> float:
+    widths = [lf.width_m for lf in traits.leaves if math.isfinite(lf.width_m)]
+    return float(np.median(widths)) if widths else math.nan
+
+
+# Our parameter for each of the paper's, in metres: (row label, function of PlantTraits).
+OURS = {
+    ("wheat", "stem diameter"): [("stem diameter", lambda t: t.stem_diameter_m)],
+    ("wheat", "distance between stems"): [
+        ("distance between stems (all pairs)", lambda t: t.mean_stem_distance_m),
+        ("distance to the nearest stem", lambda t: t.mean_nearest_stem_distance_m)],
+    ("wheat", "plant height"): [("plant height", lambda t: t.height_m)],
+    ("maize", "plant height"): [("plant height", lambda t: t.height_m)],
+    ("maize", "stem diameter"): [("stem diameter", lambda t: t.stem_diameter_m)],
+    ("maize", "leaf width"): [("leaf width (widest leaf)", lambda t: t.leaf_width_m),
+                              ("leaf width (median leaf)", median_leaf_width)],
+}
+
+
+def seed_config(mesh: Path, step_deg: float) -> RunConfig:
+    """The original rig (geometry, noiseless 726-beam sensor) scanning one seed mesh."""
+    T = tuple(tuple(float(x) for x in row) for row in T_TURNTABLE_SEEDMESH)
+    return RunConfig(plant=PlantOptions(mesh=str(mesh), T_turntable_mesh=T), rig=SEED_RIG,
+                     lidar=SEED_LIDAR, scan=StepScan(step_deg=step_deg), ideal=True)
+
+
+def measure(seed_rig: Path, plant: str) -> dict:
+    """Traits of one seed mesh: from the mesh, and from a scan at each step."""
+    out = {}
+    for step in STEPS_DEG:
+        t = time.perf_counter()
+        result = run_scan(seed_config(seed_rig / f"{plant}.stl", step))
+        points = result.cloud.plant_only().points_turntable
+        out[step] = extract_traits(points, settings=None)
+        out[f"time {step}"] = time.perf_counter() - t
+        out[f"points {step}"] = len(points)
+    out["mesh"] = traits_from_mesh(result.plant.vertices_turntable, result.plant.faces, rng=0)
+    return out
+
+
+def _err(s: float, r: float) -> str:
+    return f"{abs(s - r) / r:.1%}" if math.isfinite(s) and r else "n/a"
+
+
+def _mm(x: float) -> str:
+    return f"{x * 1e3:.2f}" if math.isfinite(x) else "n/a"
+
+
+def table(measured: dict) -> list[list[str]]:
+    """Rows: plant, parameter, paper R, paper S 1 and 0.5 deg (error), our R, our S at
+    1 and 0.5 deg (error against our R / against the paper's R)."""
+    rows = []
+    for (plant, parameter), (r_paper, s1, s05) in PAPER.items():
+        m = measured[plant]
+        for k, (label, get) in enumerate(OURS[(plant, parameter)]):
+            r_ours = get(m["mesh"])
+            ours = [get(m[step]) for step in STEPS_DEG]
+            paper = [f"{s1:.2f} ({_err(s1, r_paper)})", f"{s05:.2f} ({_err(s05, r_paper)})"] if k == 0 \
+                else ["", ""]
+            rows.append([plant if k == 0 else "", label, f"{r_paper:.2f}" if k == 0 else "", *paper,
+                         _mm(r_ours)] + [f"{_mm(s)} ({_err(s, r_ours)} / {_err(s, r_paper / 1e3)})"
+                                         for s in ours])
+    return rows
+
+
+HEADER = ["plant", "parameter", "R paper [mm]", "S paper 1° [mm] (err)", "S paper 0.5° [mm] (err)",
+          "R ours, mesh [mm]", "S ours 1° [mm] (err vs our R / vs paper R)",
+          "S ours 0.5° [mm] (err vs our R / vs paper R)"]
+
+
+def original_output_top_m(seed_rig: Path, plant: str) -> float:
+    """Height above the disk top of the original tool's highest point (NaN without its file)."""
+    path = seed_rig / f"{plant}_scan_1deg.txt"
+    if not path.is_file():
+        return math.nan
+    table_ = np.loadtxt(path, delimiter="\t", ndmin=2)
+    return float(np.nanmax(table_[:, 2]) - SEED_OUTPUT_DISK_TOP_Z)
+
+
+def notes(measured: dict, seed_rig: Path) -> list[str]:
+    """One sentence (or two) on each difference, with this run's numbers."""
+    w, m = measured["wheat"], measured["maize"]
+    w05, m1, m05 = w[0.5], m[1.0], m[0.5]
+    pairs = ", ".join(f"{p.distance_m * 1e3:.1f}" for p in w["mesh"].stem_distances)
+    widest = max((p.distance_m for p in w["mesh"].stem_distances), default=math.nan)
+    pct = lambda s, r: abs(s - r) / r * 100  # noqa: E731
+    big = sorted(m05.leaves, key=lambda lf: -lf.n_points)[:2]
+    gate = {p: original_output_top_m(seed_rig, p) for p in ("wheat", "maize")}
+    return [
+        f"**Wheat, stem diameter.** Our scan reads {w05.stem_diameter_m * 1e3:.2f} mm at both steps, "
+        f"{pct(w05.stem_diameter_m, w['mesh'].stem_diameter_m):.1f} % under the same fit on the mesh and "
+        f"{pct(w05.stem_diameter_m, 0.004):.1f} % under the paper's R; the paper's 25 % at 1 degree comes "
+        "from the original tool's misplaced points (a mirror image, beam angles scaled by 0.93, a "
+        "sensor distance 7.5 mm short: points 2-8 mm off the mesh), not from the step.",
+        f"**Wheat, distance between stems.** The mesh's three stems stand {pairs} mm apart 15-25 mm "
+        f"above the disk (mean {w05.mean_stem_distance_m * 1e3:.1f} mm), and our scans give the same "
+        f"distances to 0.01 mm; the paper's 42 mm is closest to the widest pair ({widest * 1e3:.1f} mm), "
+        "so it reads as one hand-picked pair (perhaps higher up, where the tillers splay), not a mean.",
+        "**Wheat, plant height.** The original tool drops points beyond a hand-set range (not recorded; "
+        f"its 1-degree wheat file stops {gate['wheat'] * 1e3:.0f} mm above the disk), which cuts off the "
+        "ears: the likely reason for the paper's S being 20 % and 12 % short; "
+        f"without a gate we read {w05.height_m * 1e3:.1f} mm, {(w['mesh'].height_m - w05.height_m) * 1e3:.1f} mm "
+        f"under the mesh's top vertex ({w['mesh'].height_m * 1e3:.1f} mm; no beam lands exactly on the tip). "
+        f"The paper's R (555 mm) is {(w['mesh'].height_m - 0.555) * 1e3:.1f} mm below that top; the paper does "
+        "not say where it measures from.",
+        f"**Maize, plant height.** The mesh rises {m['mesh'].height_m * 1e3:.0f} mm above the disk top and "
+        f"our scans read {m1.height_m * 1e3:.0f} and {m05.height_m * 1e3:.0f} mm; the paper's R (417 mm) "
+        f"and S (411-413 mm) measure something else (its base and top are not recorded): the original "
+        f"1-degree file stops {gate['maize'] * 1e3:.0f} mm above the disk, so its S cannot be the full "
+        "height above the disk either.",
+        f"**Maize, stem diameter.** A circle fit to the mesh gives {m['mesh'].stem_diameter_m * 1e3:.1f} mm "
+        "at 15-25 mm above the disk; the paper's 12.5 mm was measured at a height it does not give. "
+        f"Our scan reads {m05.stem_diameter_m * 1e3:.1f} mm, "
+        f"{pct(m05.stem_diameter_m, m['mesh'].stem_diameter_m):.0f} % over the mesh, most likely because "
+        "the scan samples the slice unevenly (densely where beams meet the stem head-on, sparsely at "
+        "grazing angles) where the mesh samples are uniform; this was not isolated further.",
+        "**Maize, leaf width.** The library's leaf width is the widest detected leaf, and on this mesh "
+        "that is not a leaf: the stem is lost where leaves wrap it, so the two largest components are "
+        f"stem sections with leaves attached (about "
+        f"{big[0].width_m * 1e3:.0f} and {big[1].width_m * 1e3:.0f} mm wide at 0.5 degrees) and the "
+        f"widest reads {m05.leaf_width_m * 1e3:.0f} mm. The median over detected leaves "
+        f"({median_leaf_width(m1) * 1e3:.1f} and {median_leaf_width(m05) * 1e3:.1f} mm; "
+        f"{median_leaf_width(m['mesh']) * 1e3:.1f} mm on the mesh) is the figure comparable to the one "
+        f"leaf a person measures: {pct(median_leaf_width(m05), 0.0186):.0f} % from the paper's R, where "
+        "the paper's own S was 14-15 % off.",
+    ]
+
+
+def markdown(rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def document(measured: dict, seed_rig: Path) -> str:
+    """The Markdown page: how it was made, the table, a sentence on each difference."""
+    times = ", ".join(f"{plant} {measured[plant][f'time {step}']:.1f} s at {step:g} deg"
+                      for plant in ("wheat", "maize") for step in STEPS_DEG)
+    return "\n".join([
+        "# The paper's Tables I and II, reproduced",
+        "",
+        "Written by `PYTHONPATH=. python scripts/reproduce_paper.py ../shared/seed-rig "
+        "-o docs/paper_reproduction.md`.",
+        "",
+        "The original tool's meshes (`maize.stl`, `wheat.stl`, with their turntable disk) are scanned "
+        "with the original rig's geometry (LiDAR 0.3575 m from the axis and 0.105 m above the disk "
+        "top, 726 beams over +-130 degrees, no noise: the Gazebo sensor) at 1 and 0.5 degrees; the "
+        "paper's parameters are extracted from the plant points by `plantsim.traits.extract_traits` "
+        "with its default settings, with no hand measurement. R paper is the paper's hand measurement "
+        "in CloudCompare; R ours is the same extraction on 300,000 exact samples of the mesh surface "
+        "(`traits_from_mesh`; height: the top vertex above the disk top). Errors are |S - R| / R; "
+        "ours are given against our R, then against the paper's R.",
+        "",
+        markdown(table(measured)),
+        "## The differences",
+        "",
+        *[f"- {note}" for note in notes(measured, seed_rig)],
+        "",
+        f"Scan times (load, build, cast, reconstruct; one shared machine): {times}. The paper reports "
+        "about 40 minutes per scan.",
+        "",
+    ])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("seed_rig", type=Path, help="path to ../shared/seed-rig")
+    parser.add_argument("-o", "--output", type=Path, help="also write the Markdown table here")
+    args = parser.parse_args()
+    for plant in ("wheat", "maize"):
+        if not (args.seed_rig / f"{plant}.stl").is_file():
+            sys.exit(f"reproduce_paper: no {plant}.stl in {args.seed_rig}")
+    measured = {}
+    for plant in ("wheat", "maize"):
+        measured[plant] = measure(args.seed_rig, plant)
+        m = measured[plant]
+        print(f"{plant}: " + "; ".join(
+            f"{step:g} deg: {m[f'points {step}']:,} plant points in {m[f'time {step}']:.1f} s"
+            for step in STEPS_DEG) + f"; stems found {[len(m[s].stems) for s in STEPS_DEG]}, "
+            f"in the mesh {len(m['mesh'].stems)}", file=sys.stderr)
+    text = document(measured, args.seed_rig)
+    print(text)
+    if args.output:
+        args.output.write_text(text, encoding="utf-8")
+
+if __name__ == "__main__":
+    main()
