@@ -647,7 +647,11 @@ def _finish(name: str, seed: int, params: MaizeParams | WheatParams, builder: _B
         "stem_diameter_m": float(np.mean([s["diameter_m"] for s in stems])),
         "stems": stems,
         "stem_distances_m": pairs,
-        "mean_stem_distance_m": float(np.mean(nearest)) if len(stems) > 1 else None,
+        # Two aggregates, named for what they are (plantsim.traits uses the same):
+        # the mean over all pairs, and the mean distance to the nearest other stem.
+        "mean_stem_distance_m": (float(np.mean([p["distance_m"] for p in pairs]))
+                                 if len(stems) > 1 else None),
+        "mean_nearest_stem_distance_m": float(np.mean(nearest)) if len(stems) > 1 else None,
         "leaves": leaves,
         "leaf_width_m": max(leaf["width_m"] for leaf in leaves),
         "leaf_length_m": max(leaf["length_m"] for leaf in leaves),

@@ -26,7 +26,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 GENERATORS = {"maize": make_maize, "wheat": make_wheat}
 TRAIT_KEYS = {
     "name", "generator", "seed", "params", "units", "up", "height_m", "stem_diameter_m",
-    "stems", "stem_distances_m", "mean_stem_distance_m", "leaves", "leaf_width_m",
+    "stems", "stem_distances_m", "mean_stem_distance_m", "mean_nearest_stem_distance_m",
+    "leaves", "leaf_width_m",
     "leaf_length_m", "leaf_area_m2", "n_vertices", "n_faces",
 }
 
@@ -146,10 +147,14 @@ def test_stem_diameters_and_bases_from_bottom_rings(plant):
         np.testing.assert_allclose(distance, np.linalg.norm(bases[i] - bases[j]), rtol=1e-9)
     if len(bases) == 1:
         assert traits["mean_stem_distance_m"] is None
+        assert traits["mean_nearest_stem_distance_m"] is None
     else:
         dist = np.linalg.norm(bases[:, None] - bases[None], axis=-1)
+        iu = np.triu_indices(len(bases), k=1)
+        np.testing.assert_allclose(traits["mean_stem_distance_m"], dist[iu].mean(), rtol=1e-9)
         np.fill_diagonal(dist, np.inf)
-        np.testing.assert_allclose(traits["mean_stem_distance_m"], dist.min(axis=1).mean(), rtol=1e-9)
+        np.testing.assert_allclose(traits["mean_nearest_stem_distance_m"], dist.min(axis=1).mean(),
+                                   rtol=1e-9)
 
 
 def test_leaf_traits_from_midrib_cross_sections_and_triangles(plant):
@@ -246,7 +251,7 @@ def test_wheat_is_sized_like_wheat(seed):
     assert 0.5 <= traits["height_m"] <= 0.6
     assert 3 <= len(traits["stems"]) <= 5
     assert traits["stem_diameter_m"] == pytest.approx(0.004, rel=0.05)
-    assert 0.02 <= traits["mean_stem_distance_m"] <= 0.05
+    assert 0.02 <= traits["mean_nearest_stem_distance_m"] <= 0.05
     for leaf in traits["leaves"]:
         assert 0.006 <= leaf["width_m"] <= 0.012
 
