@@ -56,7 +56,9 @@ _CELLS_PER_BATCH = 1 << 20
 # --------------------------------------------------------------------------
 # validation
 # --------------------------------------------------------------------------
-def _as_points(points: Any, name: str = "points") -> np.ndarray:
+def _as_points(points: Any, name: str = "points", *,
+               hint: str = "drop misses (e.g. points[hit]) before measuring") -> np.ndarray:
+    """Checks an (n, 3) finite, non-empty cloud; ``hint`` ends the non-finite error."""
     arr = np.asarray(points, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ValueError(f"{name} must have shape (n, 3), got shape {arr.shape}")
@@ -67,7 +69,7 @@ def _as_points(points: Any, name: str = "points") -> np.ndarray:
         first = int(np.flatnonzero(bad)[0])
         raise ValueError(
             f"{name} holds {int(bad.sum())} non-finite rows (NaN or inf), first at row "
-            f"{first}: {arr[first].tolist()}; drop misses (e.g. points[hit]) before measuring"
+            f"{first}: {arr[first].tolist()}; {hint}"
         )
     return arr
 

@@ -63,18 +63,7 @@ _NAN = float("nan")
 
 
 def _as_cloud(points: Any, name: str = "points_turntable") -> np.ndarray:
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (n, 3), got shape {arr.shape}")
-    if arr.shape[0] == 0:
-        raise ValueError(f"{name} is empty (shape {arr.shape}); need at least one point")
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
-        raise ValueError(
-            f"{name} holds {int(bad.sum())} non-finite rows (NaN or inf), first at row "
-            f"{int(np.flatnonzero(bad)[0])}; drop misses before extracting traits"
-        )
-    return arr
+    return metrics._as_points(points, name, hint="drop misses before extracting traits")
 
 
 # --------------------------------------------------------------------------
