@@ -10,7 +10,7 @@ The public surface, in one place::
     plantsim.write_cloud("scan.las", cloud)
 """
 
-from plantsim.config import OutputOptions, PlantOptions, RunConfig, config_from_dict, load_toml
+from plantsim.scan.config import OutputOptions, PlantOptions, RunConfig, config_from_dict, load_toml
 from plantsim.errors import (
     ConfigError,
     HardwareError,
@@ -23,45 +23,40 @@ from plantsim.errors import (
     ScanInterruptedError,
     SimulationError,
 )
-from plantsim.io import CLASSIFICATION, EXPORTERS, read_cloud, write_cloud
-from plantsim.mesh import PlantMesh, load_plant, plant_from_arrays
-from plantsim.pipeline import ScanResult, run_scan, simulated_rig_time_s, with_evaluation, write_result
-from plantsim.procedural import (
-    PART_EAR,
-    PART_LEAF,
-    PART_STEM,
-    MaizeParams,
-    ProceduralPlant,
-    WheatParams,
-    make_maize,
-    make_wheat,
-)
-from plantsim.reconstruct import PointCloud, reconstruct
+from plantsim.cloud.export import CLASSIFICATION, EXPORTERS, read_cloud, write_cloud
+from plantsim.plant.mesh import PlantMesh, load_plant, plant_from_arrays
+from plantsim.scan.pipeline import ScanResult, run_scan, simulated_rig_time_s, with_evaluation, write_result
+from plantsim.plant.procedural import PART_EAR, PART_LEAF, PART_STEM, MaizeParams, ProceduralPlant, WheatParams, make_maize, make_wheat
+from plantsim.cloud.reconstruct import PointCloud, reconstruct
 from plantsim.resources import bundled_plant_path
-from plantsim.rig import RigGeometry
-from plantsim.rigscan import RigScanResult, run_rig_scan, write_rig_result
-from plantsim.scan import RawScan, RayCaster, StepScan, step_and_shoot
-from plantsim.scene import HitClass, Scene, build_scene
-from plantsim.session import LineSource, SimulatedLidar, UrgLidar, run_session
-from plantsim.servo import PositionController, ServoConfig, ShaftSim, plan_profile
-from plantsim.sensor import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
+from plantsim.rig.geometry import RigGeometry
+from plantsim.scan.rig import RigScanResult, run_rig_scan, write_rig_result
+from plantsim.scan.raw import RawScan
+from plantsim.sensor.casting import RayCaster
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import HitClass, Scene, build_scene
+from plantsim.scan.session import LineSource, SimulatedLidar, UrgLidar, run_session
+from plantsim.turntable.servo import PositionController, ServoConfig, ShaftSim, plan_profile
+from plantsim.sensor.spec import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
 from plantsim.transforms import apply_T, invert_T, make_T
-from plantsim.turntable import ServoTurntable, SimulatedTurntable, Turntable
+from plantsim.turntable.table import SimulatedTurntable, Turntable
 
 __version__ = "0.1.0"
 
 # Names whose modules import scipy's heavier parts (or matplotlib): loaded on first
 # use, so that ``plantsim scan`` without ``--evaluate`` does not pay for them.
 _LAZY = {
-    "Evaluation": "plantsim.evaluate",
-    "EvaluationOptions": "plantsim.evaluate",
-    "evaluate_scan": "plantsim.evaluate",
-    "cloud_mesh_metrics": "plantsim.metrics",
-    "extract_traits": "plantsim.traits",
-    "traits_from_mesh": "plantsim.traits",
-    "Sweep": "plantsim.study",
-    "run_study": "plantsim.study",
-    "pareto_front": "plantsim.study",
+    "ServoTurntable": "plantsim.hardware.dynamixel.turntable",
+    "Evaluation": "plantsim.evaluation.evaluate",
+    "EvaluationOptions": "plantsim.evaluation.evaluate",
+    "evaluate_scan": "plantsim.evaluation.evaluate",
+    "cloud_mesh_metrics": "plantsim.evaluation.metrics",
+    "extract_traits": "plantsim.evaluation.traits",
+    "traits_from_mesh": "plantsim.evaluation.traits",
+    "Sweep": "plantsim.evaluation.study",
+    "run_study": "plantsim.evaluation.study",
+    "pareto_front": "plantsim.evaluation.study",
 }
 
 

@@ -14,12 +14,13 @@ import time
 
 import numpy as np
 
-from plantsim.dynamic_scan import TurntableOptions, continuous_scan
-from plantsim.dynamics import build_dynamic_scene
-from plantsim.mesh import load_plant
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.sensor import PRESETS
+from plantsim.turntable.options import TurntableOptions
+from plantsim.turntable.motion import continuous_scan
+from plantsim.turntable.dynamics import build_dynamic_scene
+from plantsim.plant.mesh import load_plant
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.sensor.spec import PRESETS
 
 
 def main(argv=None) -> None:

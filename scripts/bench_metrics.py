@@ -20,7 +20,7 @@ import time
 import numpy as np
 import trimesh
 
-from plantsim import metrics
+from plantsim.evaluation import metrics
 
 
 def main() -> None:

@@ -25,13 +25,15 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from plantsim.io import encode_cloud, write_atomic
-from plantsim.mesh import load_plant
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.scan import RayCaster, StepScan, ray_origins_dirs_base, step_and_shoot
-from plantsim.scene import LIDAR_GEOMGROUP, build_scene
-from plantsim.sensor import URG_04LX_UG01
+from plantsim.cloud.export import encode_cloud, write_atomic
+from plantsim.plant.mesh import load_plant
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.sensor.casting import RayCaster, ray_origins_dirs_base
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import LIDAR_GEOMGROUP, build_scene
+from plantsim.sensor.spec import URG_04LX_UG01
 
 
 def median_time(fn, runs):
@@ -106,7 +108,7 @@ def main() -> None:
     print(f"\nbare interpreter start {interpreter:.3f} s")
     for label, extra in (("plantsim scan --ideal", ["--ideal"]), ("plantsim scan (realistic default)", [])):
         with tempfile.TemporaryDirectory() as tmp:
-            cmd = [sys.executable, "-m", "plantsim.cli", "scan", str(args.mesh), "--up", args.up,
+            cmd = [sys.executable, "-m", "plantsim", "scan", str(args.mesh), "--up", args.up,
                    "--units", args.units, "--step-deg", str(args.step_deg), "-o",
                    str(Path(tmp) / "scan.las"), *extra]
             walls = []

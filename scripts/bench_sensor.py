@@ -20,12 +20,16 @@ import time
 
 import numpy as np
 
-from plantsim.mesh import load_plant
-from plantsim.rig import RigGeometry
-from plantsim.scan import RayCaster, StepScan, step_and_shoot
-from plantsim.scene import build_scene
-from plantsim.sensor import lidar_preset
-from plantsim.sensor_model import FootprintCaster, SensorModel, realistic_step_and_shoot
+from plantsim.plant.mesh import load_plant
+from plantsim.rig.geometry import RigGeometry
+from plantsim.sensor.casting import RayCaster
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import build_scene
+from plantsim.sensor.spec import lidar_preset
+from plantsim.sensor.casting import FootprintCaster
+from plantsim.sensor.model import SensorModel
+from plantsim.scan.pipeline import realistic_step_and_shoot
 
 
 def median_time(fn, runs: int) -> tuple[float, float, object]:

@@ -26,15 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-from plantsim.dynamic_scan import TurntableOptions, continuous_scan
-from plantsim.dynamics import JitterConfig, TurntableDynamics, build_dynamic_scene
-from plantsim.encoder import EncoderConfig
+from plantsim.turntable.options import TurntableOptions
+from plantsim.turntable.motion import continuous_scan
+from plantsim.turntable.dynamics import JitterConfig, TurntableDynamics, build_dynamic_scene
+from plantsim.turntable.encoder import EncoderConfig
 from plantsim.errors import SimulationError
-from plantsim.mesh import load_plant
-from plantsim.metrics import MeshProximity
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.sensor import PRESETS
+from plantsim.plant.mesh import load_plant
+from plantsim.evaluation.metrics import MeshProximity
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.sensor.spec import PRESETS
 
 LIDAR = PRESETS["urg-04lx-ug01"]
 MAX_POINTS = 20_000  # plant points measured per scan

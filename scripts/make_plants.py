@@ -21,7 +21,7 @@ if str(REPO_ROOT) not in sys.path:
     # Lets the script run from a checkout without installing plantsim.
     sys.path.insert(0, str(REPO_ROOT))
 
-from plantsim.procedural import make_maize, make_wheat, to_stl_bytes, traits_to_json  # noqa: E402
+from plantsim.plant.procedural import make_maize, make_wheat, to_stl_bytes, traits_to_json
 
 DEFAULT_OUT_DIR = REPO_ROOT / "assets"
 # The bundled plants: name -> (generator, seed). Parameters are the generators' defaults.

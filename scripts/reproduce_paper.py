@@ -39,10 +39,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from validate_seed_rig import SEED_LIDAR, SEED_OUTPUT_DISK_TOP_Z, SEED_RIG, T_TURNTABLE_SEEDMESH  # noqa: E402
 
-from plantsim.config import PlantOptions, RunConfig  # noqa: E402
-from plantsim.pipeline import run_scan  # noqa: E402
-from plantsim.scan import StepScan  # noqa: E402
-from plantsim.traits import PlantTraits, extract_traits, traits_from_mesh  # noqa: E402
+from plantsim.scan.config import PlantOptions, RunConfig
+from plantsim.scan.pipeline import run_scan
+from plantsim.scan.schedule import StepScan
+from plantsim.evaluation.traits import PlantTraits, extract_traits, traits_from_mesh
 
 STEPS_DEG = (1.0, 0.5)
 

@@ -17,7 +17,7 @@ import itertools
 import sys
 import time
 
-from plantsim.stability import run_case
+from plantsim.turntable.stability import run_case
 
 GAINS = [1e-3, 1e-2, 1e-1, 1.0, 1e1, 1e2, 1e3, 1e4]
 TIMESTEPS = [1e-5, 1e-4, 1e-3, 1e-2]

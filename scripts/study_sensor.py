@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from plantsim.config import PlantOptions, RunConfig
-from plantsim.pipeline import run_scan
-from plantsim.scan import StepScan
+from plantsim.scan.config import PlantOptions, RunConfig
+from plantsim.scan.pipeline import run_scan
+from plantsim.scan.schedule import StepScan
 
 
 def surface_samples(triangles: np.ndarray, spacing_m: float) -> tuple[np.ndarray, np.ndarray]:

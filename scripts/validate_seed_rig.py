@@ -22,13 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from plantsim.mesh import load_plant
-from plantsim.metrics import point_to_mesh_distance
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.scan import StepScan, step_and_shoot
-from plantsim.scene import build_scene
-from plantsim.sensor import LidarSpec
+from plantsim.plant.mesh import load_plant
+from plantsim.evaluation.metrics import point_to_mesh_distance
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import build_scene
+from plantsim.sensor.spec import LidarSpec
 from plantsim.transforms import make_T, rot_x, rot_z
 
 # The original rig, in plantsim's terms (seed-rig README, "Geometry of the original world").

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim.cli import main
+from plantsim.cli.app import main
 
 
 @pytest.fixture
@@ -25,7 +25,7 @@ def small_mesh(tmp_path):
 
 
 def run_cli(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "plantsim.cli", *map(str, args)], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "plantsim", *map(str, args)], cwd=cwd,
                           capture_output=True, text=True, timeout=120)
 
 

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from plantsim import cli_rig
+from plantsim.cli import rig as cli_rig
 
 
 def parser():
@@ -33,7 +33,7 @@ def test_commands_are_registered_and_rig_has_a_hook():
 def test_emulator_process_and_rig_ping(capsys):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     process = subprocess.Popen(
-        [sys.executable, "-m", "plantsim.cli_rig", "emulator", "--id", "4"],
+        [sys.executable, "-m", "plantsim", "emulator", "--id", "4"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )
     try:

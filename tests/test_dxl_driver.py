@@ -5,10 +5,10 @@ import threading
 
 import pytest
 
-from plantsim import servo
-from plantsim.dynamixel import units
-from plantsim.dynamixel.driver import DynamixelTurntable
-from plantsim.dynamixel.emulator import OVERLOAD, DynamixelEmulator
+from plantsim.turntable import servo
+from plantsim.turntable import units
+from plantsim.hardware.dynamixel.driver import DynamixelTurntable
+from plantsim.hardware.dynamixel.emulator import OVERLOAD, DynamixelEmulator
 from plantsim.errors import HardwareError, ServoAlarmError, ServoCommunicationError
 
 CONFIG = servo.ServoConfig(

@@ -17,9 +17,9 @@ from dynamixel_sdk import (
     Protocol2PacketHandler,
 )
 
-from plantsim import servo
-from plantsim.dynamixel import units
-from plantsim.dynamixel.emulator import OVERLOAD, DynamixelEmulator
+from plantsim.turntable import servo
+from plantsim.turntable import units
+from plantsim.hardware.dynamixel.emulator import OVERLOAD, DynamixelEmulator
 
 SPEED = 10.0  # simulated seconds per wall second
 
@@ -268,7 +268,7 @@ def test_fault_injection_validates(emulator):
 
 
 def test_bad_crc_instruction_gets_crc_error(emulator, port):
-    from plantsim.dynamixel import protocol
+    from plantsim.hardware.dynamixel import protocol
 
     packet = bytearray(protocol.build_instruction(1, protocol.Instruction.PING))
     packet[-1] ^= 0xFF

@@ -6,8 +6,8 @@ read's length, so without care a late reply shifts every later answer by one.
 
 import pytest
 
-from plantsim.dynamixel.driver import DynamixelTurntable
-from plantsim.dynamixel.emulator import DynamixelEmulator
+from plantsim.hardware.dynamixel.driver import DynamixelTurntable
+from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 from plantsim.errors import ServoCommunicationError
 
 

@@ -3,7 +3,7 @@
 import pytest
 from dynamixel_sdk import Protocol2PacketHandler
 
-from plantsim.dynamixel import protocol
+from plantsim.hardware.dynamixel import protocol
 
 PING_ID1 = bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")
 

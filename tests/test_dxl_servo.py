@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from plantsim import servo
-from plantsim.dynamixel import units
+from plantsim.turntable import servo
+from plantsim.turntable import units
 
 
 def analytic_rest_to_rest(t, distance, v_max, a_max):

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from plantsim.dynamixel import control_table, units
+from plantsim.hardware.dynamixel import control_table
+from plantsim.turntable import units
 
 
 def test_position_round_trip_and_convention():

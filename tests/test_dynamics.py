@@ -10,20 +10,22 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim.config import RunConfig, config_from_dict
-from plantsim.dynamic_scan import (PoseCaster, TurntableOptions, continuous_scan,
-                                   dynamic_step_and_shoot, turntable_options_from_dict)
-from plantsim.dynamics import (DEFAULT_SERVO, JitterConfig, TurntableDynamics, TurntableSim,
-                               build_dynamic_scene, torque_gains)
-from plantsim.dynamixel import units
-from plantsim.encoder import EncoderConfig, measure, read
+from plantsim.scan.config import RunConfig, config_from_dict
+from plantsim.sensor.casting import PoseCaster
+from plantsim.turntable.options import TurntableOptions, turntable_options_from_dict
+from plantsim.turntable.motion import continuous_scan, dynamic_step_and_shoot
+from plantsim.turntable.dynamics import DEFAULT_SERVO, JitterConfig, TurntableDynamics, TurntableSim, build_dynamic_scene, torque_gains
+from plantsim.turntable import units
+from plantsim.turntable.encoder import EncoderConfig, measure, read
 from plantsim.errors import ConfigError, SimulationError
-from plantsim.mesh import plant_from_arrays
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.scan import RayCaster, StepScan, step_and_shoot
-from plantsim.scene import build_scene
-from plantsim.sensor import PRESETS
+from plantsim.plant.mesh import plant_from_arrays
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.sensor.casting import RayCaster
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import build_scene
+from plantsim.sensor.spec import PRESETS
 
 LIDAR = PRESETS["urg-04lx-ug01"]
 BOX_CENTRE = np.array([0.05, 0.02, 0.05])
@@ -306,7 +308,7 @@ def box_file(tmp_path):
 
 
 def test_cli_continuous_scan_writes_a_cloud(box_file, tmp_path):
-    from plantsim.cli import main
+    from plantsim.cli.app import main
 
     out = tmp_path / "scan.ply"
     assert main(["scan", str(box_file), "--placement", "none", "--mode", "continuous", "--rpm", "10",
@@ -315,7 +317,7 @@ def test_cli_continuous_scan_writes_a_cloud(box_file, tmp_path):
 
 
 def test_a_diverging_setup_writes_nothing(box_file, tmp_path, capsys):
-    from plantsim.cli import main
+    from plantsim.cli.app import main
 
     config = tmp_path / "stiff.toml"
     config.write_text('[turntable]\nmode = "continuous"\ntimestep_s = 0.03\nintegrator = "euler"\n'
@@ -334,7 +336,7 @@ def test_a_diverging_setup_writes_nothing(box_file, tmp_path, capsys):
     (dict(load_inertia_kg_m2=1e-8, timestep_s=1e-2, integrator="euler"), "ok", ""),
 ])
 def test_stability_matrix_subset(case, outcome, match):
-    from plantsim.stability import run_case
+    from plantsim.turntable.stability import run_case
 
     out = run_case(duration_s=0.3, **case)
     assert out.outcome == outcome, out.message

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim import evaluate
-from plantsim.cli import main
-from plantsim.mesh import plant_from_arrays
+from plantsim.evaluation import evaluate
+from plantsim.cli.app import main
+from plantsim.plant.mesh import plant_from_arrays
 from plantsim.transforms import make_T, rot_x, rot_z
 
 STALK_TRUTH = {"height_m": 0.2, "stems": [{"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 0.03}]}
@@ -30,7 +30,7 @@ def test_scan_without_evaluate_has_no_evaluation_and_imports_no_metrics(tmp_path
     # The plain scan must stay as fast as before: scipy's metrics and traits are not imported.
     code = ("import sys; from plantsim.cli import main; "
             f"main(['scan', {str(stalk)!r}, '-o', {str(tmp_path / 'a.las')!r}, '--step-deg', '45']); "
-            "print(sorted(m for m in ('plantsim.evaluate', 'plantsim.metrics', 'plantsim.traits') "
+            "print(sorted(m for m in ('plantsim.evaluation.evaluate', 'plantsim.evaluation.metrics', 'plantsim.evaluation.traits') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr

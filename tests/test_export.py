@@ -7,13 +7,14 @@ import laspy
 import numpy as np
 import pytest
 
-from plantsim import io as pio
-from plantsim.mesh import plant_from_arrays
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.scan import StepScan, step_and_shoot
-from plantsim.scene import HitClass, build_scene
-from plantsim.sensor import URG_04LX_UG01
+from plantsim.cloud import export as pio
+from plantsim.plant.mesh import plant_from_arrays
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import HitClass, build_scene
+from plantsim.sensor.spec import URG_04LX_UG01
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from plantsim.errors import JournalError
-from plantsim.journal import Journal, JournalLine, encode_frame, read_journal
+from plantsim.scan.journal import Journal, JournalLine, encode_frame, read_journal
 
 N_BEAMS = 7
 

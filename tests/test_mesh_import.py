@@ -8,12 +8,13 @@ import pytest
 import trimesh
 
 from plantsim.errors import MeshError
-from plantsim.mesh import load_plant, plant_from_arrays, shell_inertia
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.scan import StepScan, step_and_shoot
-from plantsim.scene import build_scene
-from plantsim.sensor import URG_04LX_UG01
+from plantsim.plant.mesh import load_plant, plant_from_arrays, shell_inertia
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import build_scene
+from plantsim.sensor.spec import URG_04LX_UG01
 
 
 def leaf_like_mesh():

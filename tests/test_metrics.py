@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim import metrics
+from plantsim.evaluation import metrics
 
 
 def _brute_force_distance(points, vertices, faces):

@@ -10,17 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim.procedural import (
-    PART_EAR,
-    PART_LEAF,
-    PART_STEM,
-    MaizeParams,
-    WheatParams,
-    make_maize,
-    make_wheat,
-    to_stl_bytes,
-    traits_to_json,
-)
+from plantsim.plant.procedural import PART_EAR, PART_LEAF, PART_STEM, MaizeParams, WheatParams, make_maize, make_wheat, to_stl_bytes, traits_to_json
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 GENERATORS = {"maize": make_maize, "wheat": make_wheat}
@@ -102,7 +92,7 @@ def test_traits_follow_the_schema(plant):
     traits = plant.traits
     assert set(traits) == TRAIT_KEYS
     assert traits["name"] == plant.name
-    assert traits["generator"] == f"plantsim.procedural.make_{plant.name}"
+    assert traits["generator"] == f"plantsim.plant.procedural.make_{plant.name}"
     assert traits["units"] == "m" and traits["up"] == "z" and traits["seed"] == 0
     assert traits["n_vertices"] == len(plant.vertices_m)
     assert traits["n_faces"] == len(plant.faces)

@@ -10,19 +10,22 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim.config import OutputOptions, PlantOptions, RunConfig
-from plantsim.dynamixel import units
-from plantsim.dynamixel.emulator import OVERLOAD, DynamixelEmulator
+from plantsim.scan.config import OutputOptions, PlantOptions, RunConfig
+from plantsim.turntable import units
+from plantsim.hardware.dynamixel.emulator import OVERLOAD, DynamixelEmulator
 from plantsim.errors import HardwareError, JournalError, ScanInterruptedError
-from plantsim.journal import read_journal
-from plantsim.mesh import plant_from_arrays
-from plantsim.reconstruct import base_to_turntable, points_base_from_ranges
-from plantsim.rigscan import journal_path_for, run_rig_scan, write_rig_result
-from plantsim.scan import RayCaster, StepScan, gate_ranges, step_and_shoot
-from plantsim.scene import HitClass, build_scene
-from plantsim.sensor import BeamStatus
-from plantsim.session import SimulatedLidar, UrgLidar, run_session
-from plantsim.turntable import ServoTurntable, SimulatedTurntable
+from plantsim.scan.journal import read_journal
+from plantsim.plant.mesh import plant_from_arrays
+from plantsim.cloud.reconstruct import base_to_turntable, points_base_from_ranges
+from plantsim.scan.rig import journal_path_for, run_rig_scan, write_rig_result
+from plantsim.sensor.casting import RayCaster, gate_ranges
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import HitClass, build_scene
+from plantsim.sensor.spec import BeamStatus
+from plantsim.scan.session import SimulatedLidar, UrgLidar, run_session
+from plantsim.hardware.dynamixel.turntable import ServoTurntable
+from plantsim.turntable.table import SimulatedTurntable
 
 QUANTUM_RAD = units.RAD_PER_TICK  # 2 pi / 4096
 # A modest speed factor leaves CPU for the emulator to answer in time on a loaded

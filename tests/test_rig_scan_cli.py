@@ -7,9 +7,9 @@ import time
 import pytest
 import trimesh
 
-from plantsim import cli
-from plantsim.dynamixel.emulator import DynamixelEmulator
-from plantsim.journal import read_journal
+from plantsim.cli import app as cli
+from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
+from plantsim.scan.journal import read_journal
 
 
 @pytest.fixture

@@ -11,13 +11,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from plantsim import scan as scan_module
-from plantsim.mesh import plant_from_arrays
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.scan import StepScan, step_and_shoot
-from plantsim.scene import HitClass, build_spec, build_scene, compile_scene
-from plantsim.sensor import URG_04LX_UG01
+from plantsim.sensor import casting as scan_module
+from plantsim.plant.mesh import plant_from_arrays
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import HitClass, build_spec, build_scene, compile_scene
+from plantsim.sensor.spec import URG_04LX_UG01
 from plantsim.transforms import make_T, rot_z
 
 from conftest import brute_force_first_hit

@@ -4,10 +4,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from plantsim.mesh import plant_from_arrays
+from plantsim.plant.mesh import plant_from_arrays
 from plantsim.resources import data_path
-from plantsim.rig import RigGeometry
-from plantsim.scene import LIDAR_GEOMGROUP, HitClass, build_scene
+from plantsim.rig.geometry import RigGeometry
+from plantsim.rig.scene import LIDAR_GEOMGROUP, HitClass, build_scene
 
 
 @pytest.mark.parametrize("name", ["mjcf/rig.xml", "mjcf/scene.xml"])

@@ -8,16 +8,18 @@ import mujoco
 import numpy as np
 import pytest
 
-from plantsim.beam import combine_footprint, subray_pattern, subrays_lidar
-from plantsim.config import config_from_dict
+from plantsim.sensor.footprint import combine_footprint, subray_pattern, subrays_lidar
+from plantsim.scan.config import config_from_dict
 from plantsim.errors import ConfigError
-from plantsim.reconstruct import reconstruct
-from plantsim.rig import RigGeometry
-from plantsim.scan import StepScan, step_and_shoot
-from plantsim.scene import build_spec, compile_scene
-from plantsim.sensor import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
-from plantsim.sensor_model import (COS_INCIDENCE_FLOOR, FootprintCaster, SensorModel,
-                                   apply_sensor, range_sigma, realistic_step_and_shoot)
+from plantsim.cloud.reconstruct import reconstruct
+from plantsim.rig.geometry import RigGeometry
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.rig.scene import build_spec, compile_scene
+from plantsim.sensor.spec import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
+from plantsim.sensor.model import COS_INCIDENCE_FLOOR, SensorModel, apply_sensor, range_sigma
+from plantsim.sensor.casting import FootprintCaster
+from plantsim.scan.pipeline import realistic_step_and_shoot
 
 RIG = RigGeometry()  # LiDAR at x = 0.35 m, z = 0.15 m; beam 0 points along base -X.
 X_LIDAR = RIG.lidar_distance_m

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim.cli import main
-from plantsim.config import PlantOptions, RunConfig
-from plantsim.io import encode_cloud, from_las, from_ply
-from plantsim.pipeline import run_scan
-from plantsim.scan import StepScan, step_and_shoot
-from plantsim.sensor import BeamStatus
+from plantsim.cli.app import main
+from plantsim.scan.config import PlantOptions, RunConfig
+from plantsim.cloud.export import encode_cloud, from_las, from_ply
+from plantsim.scan.pipeline import run_scan
+from plantsim.scan.schedule import StepScan
+from plantsim.scan.pipeline import step_and_shoot
+from plantsim.sensor.spec import BeamStatus
 
 
 @pytest.fixture(scope="module")

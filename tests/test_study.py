@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim import study
-from plantsim.cli import main
-from plantsim.config import config_from_dict
+from plantsim.evaluation import study
+from plantsim.cli.app import main
+from plantsim.scan.config import config_from_dict
 
 
 # --------------------------------------------------------------------------
@@ -172,7 +172,7 @@ def test_a_failing_run_is_a_row_with_its_error(stalk, monkeypatch):
     def broken(config, **kwargs):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr("plantsim.pipeline.run_scan", broken)
+    monkeypatch.setattr("plantsim.scan.pipeline.run_scan", broken)
     row = study.run_one({"plant": str(stalk), "ideal": True}, {"plant": {"mesh": str(stalk)}})
     assert row == {"plant": str(stalk), "ideal": True, "error": "RuntimeError: boom"}
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from plantsim import metrics, traits
+from plantsim.evaluation import metrics, traits
 
 
 def _cylinder_cloud(rng, center_xy, radius, height, n, noise_m=0.0, z0=0.0):
@@ -290,7 +290,7 @@ def test_a_straight_slice_component_is_not_taken_for_a_stem(caplog):
     blade = np.column_stack([x, 0.0005 * np.sin(40 * x), np.full_like(x, 0.02)])
     rng = np.random.default_rng(8)
     stem = _cylinder_cloud(rng, (0.1, 0.1), 0.003, 0.1, 3_000)
-    with caplog.at_level("INFO", logger="plantsim.traits"):
+    with caplog.at_level("INFO", logger="plantsim.evaluation.traits"):
         stems = traits.estimate_stems(np.vstack([blade, stem]))
     assert len(stems) == 1 and stems[0].diameter_m == pytest.approx(0.006, rel=1e-6)
     assert "is no stem" in caplog.text
@@ -299,7 +299,7 @@ def test_a_straight_slice_component_is_not_taken_for_a_stem(caplog):
 def test_truth_aggregates_follow_one_definition_and_disagreement_is_logged(caplog):
     truth = _truth()
     truth["leaf_width_m"] = 0.009  # say, a mean over leaves rather than the largest
-    with caplog.at_level("WARNING", logger="plantsim.traits"):
+    with caplog.at_level("WARNING", logger="plantsim.evaluation.traits"):
         t = traits.traits_from_truth(truth)
     assert t.leaf_width_m == 0.01
     assert "truth['leaf_width_m'] = 0.009 differs from 0.01" in caplog.text

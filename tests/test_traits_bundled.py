@@ -24,9 +24,10 @@ import logging
 
 import pytest
 
-from plantsim import evaluate, traits
-from plantsim.config import config_from_dict
-from plantsim.pipeline import run_scan
+from plantsim.evaluation import evaluate
+from plantsim.evaluation import traits
+from plantsim.scan.config import config_from_dict
+from plantsim.scan.pipeline import run_scan
 from plantsim.resources import bundled_plant_path
 
 DENSE_SCAN = traits.TraitSettings(leaf_link_distance=0.003)
@@ -43,7 +44,7 @@ def comparison(request):
     truth = json.loads(evaluate.truth_traits_path(bundled_plant_path(name)).read_text())
     # The wheat file's mean_stem_distance_m is the nearest-neighbour mean: the
     # warning about it is expected here and not the subject of this test.
-    logger = logging.getLogger("plantsim.traits")
+    logger = logging.getLogger("plantsim.evaluation.traits")
     level = logger.level
     logger.setLevel(logging.ERROR)
     try:

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from plantsim.rig import RigGeometry
-from plantsim.sensor import URG_04LX_UG01, LidarSpec, lidar_preset
+from plantsim.rig.geometry import RigGeometry
+from plantsim.sensor.spec import URG_04LX_UG01, LidarSpec, lidar_preset
 from plantsim.transforms import apply_T, invert_T, make_T, rot_x, rot_y, rot_z
 
 

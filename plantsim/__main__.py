@@ -1,0 +1,7 @@
+"""``python -m plantsim``: the command line."""
+
+import sys
+
+from plantsim.cli import main
+
+sys.exit(main())

@@ -1,0 +1,219 @@
+"""Command-line commands for the servo rig: ``plantsim emulator`` and ``plantsim rig ...``.
+
+``plantsim.cli`` registers them with :func:`add_rig_commands`; each command sets
+``func`` on its namespace, a callable taking the parsed arguments and returning the
+exit code. Until that is wired, ``python -m plantsim.cli_rig ...`` runs them alone.
+
+Examples::
+
+    plantsim emulator --model xm430-w350 --id 1 --baud 57600
+    plantsim rig ping --port /dev/ttyUSB0 --baud 57600 --id 1
+    plantsim rig scan --port /dev/ttyUSB0 --step-deg 10 -o plant.las [--resume]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+
+from plantsim.hardware.dynamixel import control_table as ct
+
+_BAUDS = sorted(b for b in ct.BAUD_RATES_BPS.values() if b != 4_500_000)
+
+
+def add_rig_commands(subparsers: argparse._SubParsersAction) -> argparse._SubParsersAction:
+    """Registers ``emulator`` and ``rig ping`` on the top-level ``subparsers``.
+
+    Returns:
+        The ``rig`` command's own subparsers, the hook for further rig commands:
+        ``rig_commands.add_parser("scan", ...)`` with ``set_defaults(func=...)``.
+    """
+    emulator = subparsers.add_parser(
+        "emulator",
+        help="run an emulated Dynamixel servo on a pseudo-terminal",
+        description="Starts emulated Protocol 2.0 servos on a pty and prints its path; "
+        "open that path with the Dynamixel SDK or `plantsim rig`. Runs until Ctrl-C.",
+    )
+    emulator.add_argument("--model", choices=sorted(ct.CONTROL_TABLES), default="xm430-w350")
+    emulator.add_argument("--id", dest="ids", type=int, action="append",
+                          help="servo ID, repeat for several servos on the bus (default: 1)")
+    emulator.add_argument("--baud", dest="baud_bps", type=int, choices=_BAUDS, default=57_600, metavar="BPS",
+                          help="initial Baud Rate register (default: 57600)")
+    emulator.add_argument("--speed-factor", type=float, default=1.0,
+                          help="simulated seconds per wall second (default: 1)")
+    emulator.add_argument("--load-inertia", type=float, default=0.0,
+                          help="inertia carried by the shaft, kg m^2 (default: 0)")
+    emulator.set_defaults(func=run_emulator)
+
+    rig = subparsers.add_parser("rig", help="talk to the real turntable servo")
+    rig_commands = rig.add_subparsers(dest="rig_command", metavar="COMMAND", required=True)
+    ping = rig_commands.add_parser("ping", help="ping the servo; print model, firmware, position")
+    _add_connection_arguments(ping)
+    ping.set_defaults(func=run_rig_ping)
+    add_rig_scan_command(rig_commands)
+    return rig_commands
+
+
+def add_rig_scan_command(rig_commands: argparse._SubParsersAction) -> None:
+    """Registers ``rig scan`` on the ``rig`` command's subparsers."""
+    scan = rig_commands.add_parser(
+        "scan", help="scan with the turntable servo (the LiDAR is simulated at its reported angle)",
+        description="Turns the servo through the schedule and takes one simulated LiDAR line at each "
+        "reported angle (hardware in the loop). Each line is journaled to OUT.journal as it "
+        "arrives; after a fault or Ctrl-C, run the same command with --resume.")
+    _add_connection_arguments(scan)
+    scan.add_argument("mesh", nargs="?", help="plant mesh; default: the bundled maize")
+    scan.add_argument("-o", "--output", help="output point cloud (default scan.las)")
+    scan.add_argument("--config", help="TOML file with any of the options of `plantsim scan`")
+    scan.add_argument("--units", choices=["m", "cm", "mm"], help="the mesh file's unit (default m)")
+    scan.add_argument("--up", choices=["x", "y", "z"], help="the mesh file's up axis (default z)")
+    scan.add_argument("--placement", choices=["base", "bbox", "none"], help="how the plant sits on the disk")
+    scan.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
+    scan.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360; at most one turn)")
+    scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
+    scan.add_argument("--resume", action="store_true",
+                      help="continue the scan journaled in OUT.journal from its last complete line")
+    scan.add_argument("--keep-journal", action="store_true",
+                      help="keep OUT.journal after success (default: delete it once the cloud is written)")
+    scan.add_argument("--retries", type=int, default=2,
+                      help="repeats of a servo read/write whose reply was lost (default: 2)")
+    scan.add_argument("--settle-s", type=float, default=0.0, help="wait after each move, s (default: 0)")
+    scan.add_argument("--lidar", choices=["sim", "urg"], default="sim",
+                      help="sim: simulated LiDAR at the servo's reported angle (default); "
+                      "urg: a real Hokuyo (not available yet)")
+    scan.set_defaults(func=run_rig_scan)
+
+
+def _rig_scan_config(args: argparse.Namespace):
+    """The resolved RunConfig: TOML file, then command-line options."""
+    from pathlib import Path
+
+    from plantsim.scan.config import config_from_dict, load_toml, merge
+
+    data, base_dir = {}, None
+    if args.config:
+        data = load_toml(args.config)
+        base_dir = Path(args.config).resolve().parent
+    pairs = {("plant", "mesh"): args.mesh, ("plant", "units"): args.units, ("plant", "up"): args.up,
+             ("plant", "placement"): args.placement, ("scan", "step_deg"): args.step_deg,
+             ("scan", "sweep_deg"): args.sweep_deg, ("output", "path"): args.output,
+             ("output", "plant_only"): args.plant_only or None}
+    overrides: dict = {}
+    for (section, key), value in pairs.items():
+        if value is not None:
+            overrides.setdefault(section, {})[key] = value
+    # A mesh given on the command line is relative to the working directory.
+    return config_from_dict(merge(data, overrides), base_dir=base_dir if not args.mesh else None)
+
+
+def run_rig_scan(args: argparse.Namespace) -> int:
+    import time
+
+    from plantsim.cli.app import _progress_bar
+    from plantsim.errors import HardwareError, ScanInterruptedError
+    from plantsim.cloud.export import check_output_path
+    from plantsim.scan.rig import journal_path_for, run_rig_scan as rig_scan, write_rig_result
+    from plantsim.scan.session import UrgLidar
+    from plantsim.hardware.dynamixel.turntable import ServoTurntable
+
+    t0 = time.perf_counter()
+    config = _rig_scan_config(args)
+    output = check_output_path(config.output.path)  # fail before the servo moves
+    journal = journal_path_for(output)
+    if journal.exists() and not args.resume:
+        print(f"plantsim: error: {journal} holds an unfinished scan; run the same command with --resume "
+              "to continue it, or delete it to start over", file=sys.stderr)
+        return 2
+    resume_hint = (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and run the "
+                   "same command again with --resume")
+    source = UrgLidar() if args.lidar == "urg" else None
+    try:
+        turntable = ServoTurntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id,
+                                           model=args.model, retries=args.retries)
+    except HardwareError as exc:
+        print(f"plantsim: error: {exc}", file=sys.stderr)
+        return 1
+    progress, close_bar = _progress_bar("rig scan")
+    try:
+        with turntable:
+            result = rig_scan(config, turntable, resume=args.resume, source=source,
+                              settle_s=args.settle_s, progress=progress)
+    except ScanInterruptedError as exc:
+        close_bar()
+        print(f"plantsim: error: {exc}", file=sys.stderr)
+        print(resume_hint, file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        close_bar()
+        print("plantsim: interrupted. " + resume_hint.removeprefix("plantsim: "), file=sys.stderr)
+        return 130
+    finally:
+        close_bar()
+    path = write_rig_result(result, keep_journal=args.keep_journal)
+    cloud, raw = result.result.cloud, result.result.raw
+    resumed = f" ({result.lines_resumed} resumed from the journal)" if result.lines_resumed else ""
+    print(f"wrote {len(cloud):,} points ({cloud.counts_by_class()['plant']:,} on the plant) from "
+          f"{raw.n_lines} lines{resumed} x {raw.n_beams} beams to {path} in {time.perf_counter() - t0:.2f} s")
+    return 0
+
+
+def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", required=True, help="serial port, e.g. /dev/ttyUSB0 or an emulator's pty")
+    parser.add_argument("--baud", dest="baud_bps", type=int, choices=_BAUDS, default=57_600, metavar="BPS",
+                        help="baud rate (default: 57600, the servo's factory setting)")
+    parser.add_argument("--id", dest="dxl_id", type=int, default=1, help="servo ID (default: 1)")
+    parser.add_argument("--model", choices=sorted(ct.CONTROL_TABLES), default="xm430-w350",
+                        help="expected model (default: xm430-w350)")
+
+
+def run_emulator(args: argparse.Namespace) -> int:
+    from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
+
+    ids = args.ids or [1]
+    emulator = DynamixelEmulator(ids=ids, model=args.model, baud_bps=args.baud_bps,
+                                 speed_factor=args.speed_factor, load_inertia=args.load_inertia)
+    with emulator:
+        print(emulator.port_path, flush=True)
+        print(f"{args.model} ID {', '.join(map(str, ids))} at {args.baud_bps} bps; Ctrl-C to stop",
+              file=sys.stderr, flush=True)
+        try:
+            threading.Event().wait()
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def run_rig_ping(args: argparse.Namespace) -> int:
+    from plantsim.hardware.dynamixel.driver import DynamixelTurntable
+    from plantsim.errors import HardwareError
+
+    try:
+        with DynamixelTurntable(model=args.model) as turntable:
+            turntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id)
+            position = turntable.position()
+            status = turntable.hardware_error_status()
+    except HardwareError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    table = turntable.table
+    print(f"model: {table.model_name} ({table.model_number})")
+    print(f"firmware: {turntable.firmware_version}")
+    print(f"position: {position:.4f} rad")
+    if status:
+        print(f"hardware error: {', '.join(ct.hardware_error_names(status))}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Runs the rig commands alone (before ``plantsim.cli`` wires them in)."""
+    parser = argparse.ArgumentParser(prog="python -m plantsim.cli_rig")
+    add_rig_commands(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,237 @@
+"""How wrong one scan is: its cloud against the mesh it scanned, and its traits
+against the plant's exact traits.
+
+plantsim knows the truth of every scan: the placed mesh (``ScanResult.plant``), and,
+for the bundled plants (or any mesh with a ``<name>.traits.json`` beside it, as
+written by ``scripts/make_plants.py``), the exact traits the plant was built with.
+:func:`evaluate_scan` measures the plant-class points of a result against both:
+
+- cloud-to-mesh metrics (:func:`plantsim.metrics.cloud_mesh_metrics`): exact distance
+  quantiles, Chamfer distance, coverage, coverage by height band;
+- trait errors (:func:`plantsim.traits.compare_traits`): traits extracted from the
+  cloud (S) against the exact traits (R), absolute and ``|S - R| / R`` as the paper
+  reports them.
+
+Only points whose first surface was the plant are measured: the turntable and the rig
+are not part of the truth. The traits file is in the mesh's own frame (metres, z up);
+it is moved to the turntable frame with the run's ``T_turntable_mesh``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from plantsim.evaluation import metrics, traits
+from plantsim.plant.mesh import PlantMesh
+
+logger = logging.getLogger(__name__)
+
+TRAITS_SUFFIX = ".traits.json"
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EvaluationOptions:
+    """How a scan is measured.
+
+    Attributes:
+        coverage_distance: a mesh point is covered when a cloud point lies this
+            close, metres (> 0).
+        band_height: height of the coverage bands, metres (> 0).
+        n_surface_samples: area-uniform mesh samples for coverage and the
+            mesh-to-cloud side of the Chamfer distance (>= 1).
+        seed: seed of those samples (the evaluation is deterministic).
+        traits: also compare traits when an exact-traits file is found.
+        trait_settings: how traits are extracted (None: the defaults).
+    """
+
+    coverage_distance: float = 0.002
+    band_height: float = 0.05
+    n_surface_samples: int = 200_000
+    seed: int = 0
+    traits: bool = True
+    trait_settings: traits.TraitSettings | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("coverage_distance", "band_height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                    math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0 metres, got {value!r}")
+        if isinstance(self.n_surface_samples, bool) or not isinstance(self.n_surface_samples, int) \
+                or self.n_surface_samples < 1:
+            raise ValueError(f"n_surface_samples must be an integer >= 1, got {self.n_surface_samples!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """A scan's errors.
+
+    Attributes:
+        n_points: plant-class points measured.
+        metrics: cloud-to-mesh metrics, or None when the cloud holds no plant point.
+        traits: trait errors against the exact traits, or None without a traits
+            file (or without plant points).
+        estimate: the traits extracted from the cloud, or None as for ``traits``.
+        truth_path: the exact-traits file used, or None.
+        time_s: wall time of the evaluation, seconds.
+    """
+
+    n_points: int
+    metrics: metrics.CloudMeshMetrics | None
+    traits: traits.TraitComparison | None
+    estimate: traits.PlantTraits | None
+    truth_path: str | None
+    time_s: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """The sidecar's ``evaluation`` object: the metrics' fields at the top level,
+        then ``traits`` (``truth``, ``n_stems``/``n_leaves`` as [estimate, truth],
+        ``errors`` keyed by trait) and ``time_s``. JSON-ready (NaN becomes None)."""
+        out: dict[str, Any] = {"truth": "placed mesh, plant-class points only",
+                               "n_points": self.n_points}
+        if self.metrics is not None:
+            out.update(self.metrics.to_dict())
+        if self.traits is not None:
+            out["traits"] = {
+                "truth": self.truth_path,
+                "n_stems": list(self.traits.n_stems),
+                "n_leaves": list(self.traits.n_leaves),
+                "errors": {e.trait: metrics._to_jsonable({
+                    "estimate": e.estimate, "reference": e.reference,
+                    "absolute_error": e.absolute_error, "relative_error": e.relative_error,
+                    "unit": e.unit}) for e in self.traits.errors},
+            }
+        out["time_s"] = self.time_s
+        return out
+
+
+def truth_traits_path(source: str | Path) -> Path | None:
+    """The exact-traits file beside a mesh, if any.
+
+    ``assets/maize.stl`` has ``assets/maize.traits.json``; ``plant.obj.traits.json``
+    is found too.
+
+    Args:
+        source: the mesh file's path.
+
+    Returns:
+        The path, or None when there is no such file.
+    """
+    mesh = Path(source)
+    for candidate in (mesh.with_suffix(TRAITS_SUFFIX), mesh.with_name(mesh.name + TRAITS_SUFFIX)):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def truth_in_turntable(truth: Mapping[str, Any], T_turntable_mesh: Any) -> dict[str, Any]:
+    """An exact-traits dict (mesh frame) moved to the turntable frame.
+
+    Stem bases ``(x, y, 0)`` are mapped by the placement. Heights, lengths, widths
+    and distances are lengths and do not change under a rigid placement (the
+    height is the top above the base, and the cloud's is measured above the disk
+    top, where placement "base" puts the base).
+
+    Args:
+        truth: parsed traits JSON, metres, mesh frame, z up.
+        T_turntable_mesh: (4, 4) float64, mesh -> turntable; must keep z up
+            (a turn about z and a translation).
+
+    Returns:
+        A new dict in the turntable frame.
+
+    Raises:
+        ValueError: when the placement tilts z (the traits file's up axis then
+            disagrees with the placed mesh).
+    """
+    T = np.asarray(T_turntable_mesh, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"T_turntable_mesh must have shape (4, 4), got {T.shape}")
+    if abs(T[2, 2] - 1.0) > 1e-9:
+        raise ValueError("T_turntable_mesh must keep the mesh's z axis up to compare traits "
+                         f"(got T[2, 2] = {T[2, 2]:.6g}); the traits file is in metres, z up")
+    out = dict(truth)
+    stems = []
+    for stem in truth.get("stems") or ():
+        stem = dict(stem)
+        x, y = stem["base_xy_m"]
+        p = T @ np.array([float(x), float(y), 0.0, 1.0])
+        stem["base_xy_m"] = [float(p[0]), float(p[1])]
+        stems.append(stem)
+    out["stems"] = stems
+    return out
+
+
+def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
+                   options: EvaluationOptions = EvaluationOptions(),
+                   truth_path: str | Path | None = None) -> Evaluation:
+    """Measures plant points against the placed mesh and, if known, the exact traits.
+
+    Args:
+        points_turntable: (n, 3) float64, metres, turntable frame: points on the
+            plant only (n may be 0).
+        plant: the placed mesh that was scanned.
+        options: how to measure.
+        truth_path: exact-traits JSON; None looks beside the mesh file
+            (:func:`truth_traits_path`).
+
+    Returns:
+        Evaluation.
+
+    Raises:
+        ValueError: non-finite points, or a traits file that is not valid.
+        FileNotFoundError: an explicit ``truth_path`` that does not exist.
+    """
+    t0 = time.perf_counter()
+    pts = np.asarray(points_turntable, dtype=np.float64).reshape(-1, 3)
+    if truth_path is None:
+        found = truth_traits_path(plant.source) if options.traits else None
+    else:
+        found = Path(truth_path)
+        if not found.is_file():
+            raise FileNotFoundError(f"truth_path: traits file not found: {found}")
+    if len(pts) == 0:
+        logger.warning("no point hit the plant: nothing to evaluate")
+        return Evaluation(n_points=0, metrics=None, traits=None, estimate=None,
+                          truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
+    measured = metrics.cloud_mesh_metrics(
+        pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
+        band_height=options.band_height, n_surface_samples=options.n_surface_samples,
+        rng=np.random.default_rng(options.seed))
+    comparison = estimate = None
+    if found is not None and options.traits:
+        try:
+            truth = json.loads(found.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"truth_path: {found} is not valid JSON: {exc}") from exc
+        reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
+        estimate = traits.extract_traits(pts, settings=options.trait_settings)
+        comparison = traits.compare_traits(estimate, reference)
+    return Evaluation(n_points=int(len(pts)), metrics=measured, traits=comparison, estimate=estimate,
+                      truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
+
+
+def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
+                  truth_path: str | Path | None = None) -> Evaluation:
+    """Measures a :class:`plantsim.pipeline.ScanResult` (its plant-class points).
+
+    Args:
+        result: the scan.
+        options: how to measure.
+        truth_path: exact-traits JSON; None looks beside the mesh file.
+
+    Returns:
+        Evaluation.
+    """
+    return evaluate_cloud(result.cloud.plant_only().points_turntable, result.plant,
+                          options=options, truth_path=truth_path)

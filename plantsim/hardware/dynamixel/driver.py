@@ -1,0 +1,430 @@
+"""Driver for the turntable servo through the official ``dynamixel_sdk``.
+
+:class:`DynamixelTurntable` is the narrow interface the scanner needs: connect and
+verify the model, configure it from a :class:`plantsim.servo.ServoConfig`, torque
+on/off, move and wait, read the state, reboot after a shutdown (only if allowed).
+
+Every communication failure becomes a :class:`plantsim.errors.ServoCommunicationError`
+naming the SDK's result text, the port, the ID and what to check; a hardware alert
+becomes a :class:`plantsim.errors.ServoAlarmError`. The SDK is not thread-safe, so
+calls are serialised by a lock; after the port vanishes (adapter unplugged, emulator
+gone) the port is released so that :meth:`DynamixelTurntable.connect` works again.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import termios
+import threading
+import time
+
+from plantsim.turntable import servo
+from plantsim.hardware.dynamixel import control_table as ct
+from plantsim.hardware.dynamixel import protocol
+from plantsim.turntable import units
+from plantsim.errors import HardwareError, ServoAlarmError, ServoCommunicationError
+
+_log = logging.getLogger(__name__)
+
+_CHECKLIST = (
+    "Check that the servo is powered (12 V), that the baud rate and ID match the servo's "
+    "Baud Rate and ID registers, and that the cable and USB adapter are connected."
+)
+# How long to wait for a late status after a lost one before discarding it: far longer
+# than a servo takes (Return Delay Time 0.5 ms) plus two 16 ms USB latency periods.
+_LATE_STATUS_S = 0.05
+# Block read for polling a move: Moving (122) .. Present Position (132..135).
+_POLL_ADDRESS, _POLL_LENGTH = 122, 14
+
+
+class _LostStatus(Exception):
+    """A status packet timed out or was corrupt (COMM_RX_TIMEOUT / COMM_RX_CORRUPT)."""
+
+
+def _sdk():
+    try:
+        import dynamixel_sdk
+    except ImportError as exc:  # pragma: no cover - depends on the installation
+        raise ImportError(
+            "the Dynamixel driver needs the official SDK: pip install 'plantsim[rig]' (dynamixel-sdk)"
+        ) from exc
+    return dynamixel_sdk
+
+
+def _port_errors() -> tuple[type[BaseException], ...]:
+    import serial
+
+    return (OSError, termios.error, serial.SerialException)
+
+
+class DynamixelTurntable:
+    """The turntable's Dynamixel servo.
+
+    Args:
+        model: expected model, "xm430-w350" (default) or "xl430-w250"; connect()
+            refuses a servo that reports another model number.
+        allow_reboot: allow :meth:`reboot`, and let :meth:`move_to` reboot the servo
+            once after a hardware shutdown (overload, ...) and retry. Off by default:
+            a reboot re-enables torque, and a jammed plant or hand can be in the way.
+        retries: times to repeat a read or register write whose status packet was
+            missing or corrupt (each retry is logged as a warning). Reads and register
+            writes are idempotent; 0 surfaces every lost packet.
+    """
+
+    def __init__(self, *, model: str = "xm430-w350", allow_reboot: bool = False, retries: int = 0):
+        if not isinstance(retries, int) or retries < 0:
+            raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+        self.table = ct.control_table(model)
+        self.allow_reboot = allow_reboot
+        self.retries = retries
+        self._lock = threading.Lock()
+        self._port = None
+        self._packet = None
+        self.port_name: str | None = None
+        self.baud_bps: int | None = None
+        self.dxl_id: int | None = None
+        self.firmware_version: int | None = None
+        self._config: servo.ServoConfig | None = None
+        self._operating_mode: int = 3
+
+    # --- connection -------------------------------------------------------------------
+
+    @property
+    def connected(self) -> bool:
+        return self._port is not None
+
+    def connect(self, port: str, *, baud_bps: int = 57_600, dxl_id: int = 1) -> None:
+        """Opens ``port``, pings ``dxl_id`` and verifies its model number.
+
+        Raises:
+            ValueError: for an unsupported baud or an ID outside [0, 252].
+            ServoCommunicationError: if the port cannot be opened or the servo does
+                not answer, or answers with another model number.
+        """
+        sdk = _sdk()
+        if baud_bps not in ct.BAUD_RATES_BPS.values() or baud_bps == 4_500_000:
+            valid = sorted(b for b in ct.BAUD_RATES_BPS.values() if b != 4_500_000)
+            raise ValueError(f"baud_bps must be one of {valid} (the SDK refuses 4.5 M), got {baud_bps}")
+        if not 0 <= dxl_id <= protocol.MAX_ID:
+            raise ValueError(f"dxl_id must be in [0, 252], got {dxl_id}")
+        if self._port is not None:
+            self.close()
+        handler = sdk.PortHandler(port)
+        try:
+            handler.openPort()
+            if not handler.setBaudRate(baud_bps):
+                raise ServoCommunicationError(f"the SDK refused baud {baud_bps} on {port}")
+        except _port_errors() as exc:
+            raise ServoCommunicationError(
+                f"cannot open {port}: {exc}. Check the port path (ls /dev/ttyUSB* /dev/ttyACM*), "
+                "that no other program holds it, and that you may access it (group dialout)."
+            ) from exc
+        self._port, self._packet = handler, sdk.PacketHandler(2.0)
+        self.port_name, self.baud_bps, self.dxl_id = port, baud_bps, dxl_id
+        try:
+            model_number = self.ping()
+            if model_number != self.table.model_number:
+                other = ct.CONTROL_TABLES_BY_NUMBER.get(model_number)
+                hint = f" ({other.model_name}; pass model={other.model_name.lower()!r})" if other else ""
+                raise ServoCommunicationError(
+                    f"ID {dxl_id} on {port} is model {model_number}{hint}, expected "
+                    f"{self.table.model_name} ({self.table.model_number})"
+                )
+            self.firmware_version = self.read_register("Firmware Version")
+            self._operating_mode = self.read_register("Operating Mode")
+        except HardwareError:
+            self.close()
+            raise
+        _log.info("connected to %s ID %d on %s at %d bps (firmware %s)", self.table.model_name, dxl_id,
+                  port, baud_bps, self.firmware_version)
+
+    def close(self) -> None:
+        """Releases the port (torque is left as it is)."""
+        with self._lock:
+            self._release_port()
+
+    def __enter__(self) -> "DynamixelTurntable":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _release_port(self) -> None:
+        if self._port is None:
+            return
+        self._port.is_using = False
+        try:
+            self._port.closePort()
+        except _port_errors() + (AttributeError,) as exc:
+            _log.debug("closing %s: %s", self.port_name, exc)
+        self._port = None
+
+    # --- low level --------------------------------------------------------------------
+
+    def _call(self, what: str, method: str, *args, check_alert: bool = False, retry: bool = True):
+        """Runs one SDK call; returns its value(s) without the result/error codes."""
+        attempts = 1 + (self.retries if retry else 0)
+        for attempt in range(1, attempts + 1):
+            try:
+                return self._call_once(what, method, *args, check_alert=check_alert)
+            except _LostStatus as lost:
+                self._drain_late_status()
+                if attempt == attempts:
+                    raise ServoCommunicationError(str(lost)) from None
+                _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
+        raise AssertionError("unreachable")
+
+    def _drain_late_status(self) -> None:
+        """Waits out and discards a status that may still arrive for a lost one.
+
+        Protocol 2.0 status packets carry no sequence number, and the SDK takes the
+        first status with the right ID as the answer: a late reply to the lost request
+        would be read as the answer to the next one (wrong values, silently).
+        """
+        time.sleep(_LATE_STATUS_S)
+        with self._lock:
+            if self._port is not None:
+                try:
+                    self._port.clearPort()
+                except _port_errors() as exc:
+                    _log.debug("clearing %s: %s", self.port_name, exc)
+
+    def _call_once(self, what: str, method: str, *args, check_alert: bool):
+        with self._lock:
+            if self._port is None:
+                raise ServoCommunicationError(f"{what}: not connected; call connect() first")
+            try:
+                out = getattr(self._packet, method)(self._port, self.dxl_id, *args)
+            except _port_errors() as exc:
+                port = self.port_name
+                self._release_port()
+                raise ServoCommunicationError(
+                    f"{what} on {port} ID {self.dxl_id}: the port failed ({exc!r}); the adapter was "
+                    f"unplugged or the port closed. {_CHECKLIST} Then call connect() again."
+                ) from exc
+        if isinstance(out, tuple) and len(out) == 3:
+            value, result, error = out
+        else:
+            (result, error), value = out, None
+        if result == 0 and method == "readTxRx" and len(value) != args[-1]:
+            # The SDK does not check the length: a status of another length is the
+            # late reply to an earlier request, not this one's.
+            raise _LostStatus(
+                f"{what} on {self.port_name} ID {self.dxl_id}: a status with {len(value)} data bytes "
+                f"instead of {args[-1]} (a late reply to an earlier request)")
+        if result != 0:
+            if result == -1000:  # COMM_PORT_BUSY: a previous call left the flag set
+                self._port.is_using = False
+            error_class = _LostStatus if result in (-3001, -3002) else ServoCommunicationError
+            raise error_class(
+                f"{what} on {self.port_name} ID {self.dxl_id} at {self.baud_bps} bps failed: "
+                f"{self._packet.getTxRxResult(result)} {_CHECKLIST}"
+            )
+        if error & protocol.ERROR_ALERT_BIT and check_alert:
+            # The shutdown is the cause worth reporting, even when the instruction
+            # was refused because of it (torque on during a shutdown).
+            self._raise_alarm(what)
+        code = error & 0x7F
+        if code:
+            raise ServoCommunicationError(
+                f"{what} on {self.port_name} ID {self.dxl_id} refused: {self._packet.getRxPacketError(code)} "
+                f"({protocol.describe_error(code)})"
+            )
+        return value
+
+    def _raise_alarm(self, what: str) -> None:
+        status = self.hardware_error_status()
+        names = ", ".join(ct.hardware_error_names(status)) or f"status 0x{status:02x}"
+        action = (
+            "reboot() is allowed and will be tried"
+            if self.allow_reboot
+            else "remove the cause, then reboot it: construct DynamixelTurntable(allow_reboot=True) "
+            "and call reboot(), or power-cycle the servo"
+        )
+        raise ServoAlarmError(
+            f"{what}: servo ID {self.dxl_id} on {self.port_name} reports {names} and has dropped torque; "
+            f"check the load (jammed turntable, heavy pot), the supply and the temperature; {action}.",
+            hardware_error_status=status,
+        )
+
+    def ping(self) -> int:
+        """Pings the servo; returns its model number."""
+        return self._call("ping", "ping")
+
+    def read_register(self, name: str) -> int:
+        """Reads a register by name; signed registers come back signed."""
+        register = self.table[name]
+        # readTxRx, not read{1,2,4}ByteTxRx: those raise IndexError on an error status
+        # that carries no data.
+        data = self._call(f"read {name}", "readTxRx", register.address, register.size)
+        raw = int.from_bytes(bytes(data), "little")
+        return units.to_signed(raw, register.size) if register.signed else raw
+
+    def write_register(self, name: str, value: int) -> None:
+        """Writes a register by name (raw units; signed values allowed where signed).
+
+        Raises:
+            ValueError: if ``value`` is outside the register's static range.
+            ServoCommunicationError: if the servo refuses (EEPROM with torque on, limit).
+        """
+        register = self.table[name]
+        if not register.writable:
+            raise ValueError(f"{name} is read-only")
+        if not register.accepts(int(value)):
+            raise ValueError(f"value for {name} must be in [{register.minimum}, {register.maximum}], got {value}")
+        raw = units.to_unsigned(int(value), register.size) if register.signed else int(value)
+        self._call(f"write {name}={value}", f"write{register.size}ByteTxRx", register.address, raw,
+                   check_alert=register.name in ("Torque Enable", "Goal Position"))
+
+    # --- configuration ------------------------------------------------------------
+
+    def configure(self, config: servo.ServoConfig, *, operating_mode: str = "position") -> None:
+        """Writes the operating mode, PWM limit, position gains and profile.
+
+        Torque is switched off for the EEPROM writes and restored afterwards.
+
+        Raises:
+            ValueError: for an operating mode this model lacks.
+        """
+        if operating_mode not in ct.OPERATING_MODES:
+            raise ValueError(f"operating_mode must be one of {sorted(ct.OPERATING_MODES)}, got {operating_mode!r}")
+        mode = ct.OPERATING_MODES[operating_mode]
+        if not self.table["Operating Mode"].accepts(mode):
+            raise ValueError(f"{self.table.model_name} has no {operating_mode!r} mode")
+        registers = config.to_registers()
+        was_on = self.read_register("Torque Enable") == 1
+        if was_on:
+            self.torque_off()
+        self.write_register("Operating Mode", mode)
+        self.write_register("PWM Limit", registers.pop("PWM Limit"))
+        for name, value in registers.items():
+            self.write_register(name, value)
+        self._config, self._operating_mode = config, mode
+        if was_on:
+            self.torque_on()
+
+    def torque_on(self) -> None:
+        self.write_register("Torque Enable", 1)
+
+    def torque_off(self) -> None:
+        self.write_register("Torque Enable", 0)
+
+    # --- motion -------------------------------------------------------------------
+
+    def move_to(self, angle_rad: float, *, timeout_s: float = 10.0, tolerance_rad: float = 2 * units.RAD_PER_TICK,
+                poll_interval_s: float = 0.002) -> float:
+        """Moves to ``angle_rad`` along the servo's profile and waits until it stops there.
+
+        Done when the Moving flag is 0 and the position is within ``tolerance_rad``.
+
+        Args:
+            angle_rad: goal, rad (raw 0 = 0 rad). In position mode it must lie within
+                the position limits (0 .. 2 pi by default); nothing is wrapped.
+            timeout_s: wall-clock limit, s.
+            tolerance_rad: accepted final error, rad.
+
+        Returns:
+            The final present position, rad.
+
+        Raises:
+            ValueError: for a goal outside the limits or non-finite input.
+            ServoAlarmError: on a hardware shutdown (after one reboot and retry when
+                ``allow_reboot``).
+            ServoCommunicationError: if the servo stops answering or the move times out.
+        """
+        goal_ticks = units.rad_to_ticks(angle_rad)
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"timeout_s must be finite and > 0, got {timeout_s!r}")
+        if not (math.isfinite(tolerance_rad) and tolerance_rad > 0):
+            raise ValueError(f"tolerance_rad must be finite and > 0, got {tolerance_rad!r}")
+        if self._operating_mode in (3, 5):
+            low, high = self.read_register("Min Position Limit"), self.read_register("Max Position Limit")
+            if not low <= goal_ticks <= high:
+                raise ValueError(
+                    f"angle_rad must be within the position limits [{units.ticks_to_rad(low):.4f}, "
+                    f"{units.ticks_to_rad(high):.4f}] rad in position mode, got {angle_rad}; use "
+                    "operating_mode='extended_position' for multi-turn goals"
+                )
+        try:
+            return self._move(goal_ticks, timeout_s, tolerance_rad, poll_interval_s)
+        except ServoAlarmError:
+            if not self.allow_reboot:
+                raise
+            _log.warning("servo ID %d shut down during a move; rebooting (allow_reboot=True)", self.dxl_id)
+            self.reboot()
+            self.torque_on()
+            return self._move(goal_ticks, timeout_s, tolerance_rad, poll_interval_s)
+
+    def _move(self, goal_ticks: int, timeout_s: float, tolerance_rad: float, poll_interval_s: float) -> float:
+        if self.read_register("Torque Enable") != 1:
+            if self.hardware_error_status():
+                self._raise_alarm("move")
+            raise HardwareError(f"servo ID {self.dxl_id} has torque off; call torque_on() before move_to()")
+        self.write_register("Goal Position", goal_ticks)
+        deadline = time.monotonic() + timeout_s
+        tolerance_ticks = tolerance_rad / units.RAD_PER_TICK
+        while True:
+            data = self._call("poll move", "readTxRx", _POLL_ADDRESS, _POLL_LENGTH, check_alert=True)
+            moving = data[0]
+            position_ticks = units.to_signed(int.from_bytes(bytes(data[10:14]), "little"), 4)
+            if not moving and abs(position_ticks - goal_ticks) <= tolerance_ticks:
+                return units.ticks_to_rad(position_ticks)
+            if time.monotonic() > deadline:
+                raise ServoCommunicationError(
+                    f"servo ID {self.dxl_id} did not reach {units.ticks_to_rad(goal_ticks):.4f} rad within "
+                    f"{timeout_s} s (at {units.ticks_to_rad(position_ticks):.4f} rad, moving={moving}); "
+                    "check for a jam or too heavy a load, the profile velocity, and tolerance_rad"
+                )
+            time.sleep(poll_interval_s)
+
+    def reboot(self) -> None:
+        """Reboots the servo to clear a shutdown, then restores the configuration.
+
+        Torque stays off afterwards; call :meth:`torque_on`.
+
+        Raises:
+            HardwareError: if ``allow_reboot`` is False.
+        """
+        if not self.allow_reboot:
+            raise HardwareError(
+                f"reboot of servo ID {self.dxl_id} refused: construct DynamixelTurntable(allow_reboot=True) "
+                "once the cause is removed (a reboot lets the turntable move again)"
+            )
+        self._call("reboot", "reboot", retry=False)
+        deadline = time.monotonic() + 2.0
+        while True:  # the firmware needs a moment before it answers again
+            try:
+                self.ping()
+                break
+            except ServoCommunicationError:
+                if time.monotonic() > deadline or self._port is None:
+                    raise
+                time.sleep(0.05)
+        if self._config is not None:
+            mode = {v: k for k, v in ct.OPERATING_MODES.items()}[self._operating_mode]
+            self.configure(self._config, operating_mode=mode)
+
+    # --- state --------------------------------------------------------------------
+
+    def position(self) -> float:
+        """Present position, rad (raw 0 = 0 rad)."""
+        return units.ticks_to_rad(self.read_register("Present Position"))
+
+    def velocity(self) -> float:
+        """Present velocity, rad/s."""
+        return units.velocity_units_to_rad_s(self.read_register("Present Velocity"))
+
+    def current(self) -> float:
+        """Present current, A (XM430; the XL430 reports load instead)."""
+        if "Present Current" not in self.table:
+            raise HardwareError(f"{self.table.model_name} has no current sensor")
+        return units.current_units_to_a(self.read_register("Present Current"))
+
+    def temperature(self) -> float:
+        """Present temperature, degC."""
+        return float(self.read_register("Present Temperature"))
+
+    def hardware_error_status(self) -> int:
+        """Hardware Error Status bits (see ``control_table.HARDWARE_ERROR_BITS``)."""
+        return self.read_register("Hardware Error Status")

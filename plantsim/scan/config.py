@@ -1,0 +1,205 @@
+"""A scan's whole configuration: plant, sensor, rig, schedule, output.
+
+Every option can come from a TOML file (sections ``[plant]``, ``[lidar]``,
+``[rig]``, ``[scan]``, ``[output]``, ``[sensor_model]``, ``[turntable]``) and from
+the command line, which wins.
+The resolved configuration goes into every output's sidecar JSON.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from plantsim.turntable.options import TurntableOptions, turntable_options_from_dict
+from plantsim.errors import ConfigError
+from plantsim.plant.mesh import PLACEMENTS, UNITS_TO_M
+from plantsim.rig.geometry import RigGeometry
+from plantsim.scan.schedule import StepScan
+from plantsim.sensor.spec import PRESETS, LidarSpec, lidar_preset
+from plantsim.sensor.model import SensorModel
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on 3.10 only
+    import tomli as tomllib
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class PlantOptions:
+    """Which plant, and how to read and place it.
+
+    Attributes:
+      mesh: path of an STL/OBJ/PLY file, or None for the bundled maize.
+      bundled: name of a bundled plant used when ``mesh`` is None.
+      units: the file's unit: "m", "cm", "mm".
+      up: the file's up axis: "x", "y", "z".
+      placement: "base", "bbox" or "none" (see :func:`plantsim.mesh.load_plant`).
+      T_turntable_mesh: explicit rigid placement, 4x4 row-major nested lists, or None.
+      areal_density_kg_m2: mass per area for the plant's inertial.
+    """
+
+    mesh: str | None = None
+    bundled: str = "maize"
+    units: str = "m"
+    up: str = "z"
+    placement: str = "base"
+    T_turntable_mesh: tuple | None = None
+    areal_density_kg_m2: float = 0.3
+
+    def __post_init__(self):
+        if self.units not in UNITS_TO_M:
+            raise ValueError(f"units must be one of {', '.join(UNITS_TO_M)}, got {self.units!r}")
+        if self.up not in ("x", "y", "z"):
+            raise ValueError(f"up must be one of x, y, z, got {self.up!r}")
+        if self.placement not in PLACEMENTS:
+            raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
+        if not (isinstance(self.areal_density_kg_m2, (int, float))
+                and math.isfinite(self.areal_density_kg_m2) and self.areal_density_kg_m2 > 0):
+            raise ValueError(f"areal_density_kg_m2 must be a positive number, got {self.areal_density_kg_m2!r}")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class OutputOptions:
+    """Where and what to write.
+
+    Attributes:
+      path: the point cloud; its extension picks the format (.las .ply .pcd .txt .xyz).
+      plant_only: write only points on the plant.
+    """
+
+    path: str = "scan.las"
+    plant_only: bool = False
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RunConfig:
+    """Everything a scan run needs.
+
+    Attributes:
+      seed: seed of the run's one ``numpy.random.Generator`` (all randomness).
+      ideal: turn off every imperfection (perfect geometry): one ray per
+        beam, exact ranges, no intensity, no dropouts.
+      threads: ray-casting threads (None: all cores).
+      turntable: how the table moves (mode, servo, jitter, encoder); see
+        :class:`plantsim.dynamic_scan.TurntableOptions`.
+      sensor_model: the sensor imperfections and reflectances of a
+        non-ideal run (``[sensor_model]``).
+    """
+
+    plant: PlantOptions = PlantOptions()
+    lidar: LidarSpec = PRESETS["urg-04lx-ug01"]
+    rig: RigGeometry = RigGeometry()
+    scan: StepScan = StepScan()
+    output: OutputOptions = OutputOptions()
+    seed: int = 0
+    ideal: bool = False
+    threads: int | None = None
+    turntable: TurntableOptions = TurntableOptions()
+    sensor_model: SensorModel = SensorModel()
+
+    def __post_init__(self):
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
+            raise ValueError(f"threads must be a positive integer, got {self.threads!r}")
+
+    def to_dict(self) -> dict:
+        """The resolved configuration as plain JSON-able data."""
+        return {
+            "plant": dataclasses.asdict(self.plant),
+            "lidar": dataclasses.asdict(self.lidar),
+            "rig": dataclasses.asdict(self.rig),
+            "scan": dataclasses.asdict(self.scan),
+            "output": dataclasses.asdict(self.output),
+            "seed": self.seed,
+            "ideal": self.ideal,
+            "threads": self.threads,
+            "turntable": dataclasses.asdict(self.turntable),
+            "sensor_model": dataclasses.asdict(self.sensor_model),
+        }
+
+
+_SECTIONS = {"plant": PlantOptions, "rig": RigGeometry, "scan": StepScan, "output": OutputOptions,
+             "sensor_model": SensorModel}
+_TOP_LEVEL = ("seed", "ideal", "threads")
+
+
+def _known(cls) -> list[str]:
+    return [f.name for f in dataclasses.fields(cls)]
+
+
+def _build(cls, values: dict, where: str):
+    unknown = sorted(set(values) - set(_known(cls)))
+    if unknown:
+        raise ConfigError(f"unknown key(s) {', '.join(unknown)} in [{where}]; valid keys: "
+                          f"{', '.join(_known(cls))}")
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"[{where}] {exc}") from exc
+
+
+def config_from_dict(data: dict[str, Any], *, base_dir: str | os.PathLike | None = None) -> RunConfig:
+    """Builds a :class:`RunConfig` from nested plain data (a parsed TOML file).
+
+    Relative paths of ``plant.mesh`` are taken relative to ``base_dir``.
+    """
+    unknown = sorted(set(data) - set(_SECTIONS) - {"lidar", "turntable"} - set(_TOP_LEVEL))
+    if unknown:
+        raise ConfigError(f"unknown key(s) or section(s) {', '.join(unknown)}; valid: "
+                          f"{', '.join(list(_SECTIONS) + ['lidar', 'turntable'] + list(_TOP_LEVEL))}")
+    parts = {}
+    for name, cls in _SECTIONS.items():
+        values = dict(data.get(name, {}))
+        if name == "plant" and values.get("mesh") and base_dir is not None:
+            values["mesh"] = str(Path(base_dir) / Path(values["mesh"]).expanduser())
+        if name == "plant" and values.get("T_turntable_mesh") is not None:
+            values["T_turntable_mesh"] = tuple(tuple(float(x) for x in row)
+                                               for row in values["T_turntable_mesh"])
+        parts[name] = _build(cls, values, name)
+    try:
+        parts["turntable"] = turntable_options_from_dict(data.get("turntable", {}))
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"[turntable] {exc}") from exc
+    lidar_values = dict(data.get("lidar", {}))
+    try:
+        base = lidar_preset(lidar_values.pop("preset", "urg-04lx-ug01"))
+    except ValueError as exc:
+        raise ConfigError(f"[lidar] {exc}") from exc
+    unknown = sorted(set(lidar_values) - set(_known(LidarSpec)))
+    if unknown:
+        raise ConfigError(f"unknown key(s) {', '.join(unknown)} in [lidar]; valid keys: preset, "
+                          f"{', '.join(_known(LidarSpec))}")
+    try:
+        lidar = base.replace(**lidar_values) if lidar_values else base
+        return RunConfig(lidar=lidar, **parts, **{k: data[k] for k in _TOP_LEVEL if k in data})
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(str(exc)) from exc
+
+
+def load_toml(path: str | os.PathLike) -> dict[str, Any]:
+    """Reads a TOML configuration file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file not found: {path}")
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path} is not valid TOML: {exc}") from exc
+
+
+def merge(base: dict, overrides: dict) -> dict:
+    """Nested dict merge: ``overrides`` wins; sections are merged key by key."""
+    out = {k: (dict(v) if isinstance(v, dict) else v) for k, v in base.items()}
+    for key, value in overrides.items():
+        if isinstance(value, dict):
+            out[key] = {**out.get(key, {}), **value}
+        else:
+            out[key] = value
+    return out
