@@ -81,3 +81,38 @@ def scale_T(scale: float) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] *= scale
     return T
+
+
+def translation_quat_xyzw(T_a_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A rigid transform as a translation (3,) and a unit quaternion (x, y, z, w), as ROS's TF
+    carries it (Shepperd's method: the largest of the four candidates is computed first, so
+    the division is well conditioned)."""
+    R = np.asarray(T_a_b, dtype=np.float64)[:3, :3]
+    t = np.asarray(T_a_b, dtype=np.float64)[:3, 3].copy()
+    trace = R[0, 0] + R[1, 1] + R[2, 2]
+    candidates = [trace, R[0, 0], R[1, 1], R[2, 2]]
+    k = int(np.argmax(candidates))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        q = [(R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s, s / 4]
+    elif k == 1:
+        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
+        q = [s / 4, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s, (R[2, 1] - R[1, 2]) / s]
+    elif k == 2:
+        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
+        q = [(R[0, 1] + R[1, 0]) / s, s / 4, (R[1, 2] + R[2, 1]) / s, (R[0, 2] - R[2, 0]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
+        q = [(R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, s / 4, (R[1, 0] - R[0, 1]) / s]
+    q = np.array(q)
+    q /= np.linalg.norm(q)
+    return t, (q if q[3] >= 0 else -q)
+
+
+def T_from_translation_quat_xyzw(translation: np.ndarray, quat_xyzw: np.ndarray) -> np.ndarray:
+    """The 4x4 transform of a translation and a quaternion (x, y, z, w; normalised here)."""
+    x, y, z, w = np.asarray(quat_xyzw, dtype=np.float64) / np.linalg.norm(quat_xyzw)
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return make_T(R, np.asarray(translation, dtype=np.float64))

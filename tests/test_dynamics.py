@@ -11,9 +11,13 @@ import pytest
 import trimesh
 
 from plantsim.scan.config import RunConfig, config_from_dict
-from plantsim.sensor.casting import PoseCaster
+from plantsim.rig.scene import LIDAR_GEOMGROUP
+from plantsim.scan.plan import plan_scan
+from plantsim.scan.pipeline import run_scan
+from plantsim.scan.raw import BeamGrid
+from plantsim.sensor.lidar import SimulatedLidar
+from plantsim.sensor.spec import BeamStatus
 from plantsim.turntable.options import TurntableOptions, turntable_options_from_dict
-from plantsim.turntable.motion import continuous_scan, dynamic_step_and_shoot
 from plantsim.turntable.dynamics import DEFAULT_SERVO, JitterConfig, TurntableDynamics, TurntableSim, build_dynamic_scene, torque_gains
 from plantsim.turntable import units
 from plantsim.turntable.encoder import EncoderConfig, measure, read
@@ -21,9 +25,7 @@ from plantsim.errors import ConfigError, SimulationError
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.cloud.reconstruct import reconstruct
 from plantsim.rig.geometry import RigGeometry
-from plantsim.sensor.casting import RayCaster
 from plantsim.scan.schedule import StepScan
-from plantsim.scan.pipeline import step_and_shoot
 from plantsim.rig.scene import build_scene
 from plantsim.sensor.spec import PRESETS
 
@@ -172,10 +174,9 @@ def test_encoder_offset_eccentricity_latency():
 def test_continuous_ideal_scan_deskews_to_within_a_millimetre(box_plant):
     errors = {}
     for deskew in (True, False):
-        options = TurntableOptions(mode="continuous", rpm=5, deskew=deskew).effective(True)
-        ds = build_dynamic_scene(RigGeometry(), box_plant, options.dynamics)
-        result = continuous_scan(ds, LIDAR, 360, options, np.random.default_rng(0))
-        raw = result.raw
+        config = RunConfig(ideal=True, turntable=TurntableOptions(mode="continuous", rpm=5, physics="dynamic",
+                                                                  deskew=deskew))
+        raw = run_scan(config, plant=box_plant).raw
         assert raw.n_lines == 120
         # Every beam of a line has its own pose: the table turns during a line.
         assert np.all(np.diff(raw.true_turntable_angle_rad[60]) > 0)
@@ -187,22 +188,37 @@ def test_continuous_ideal_scan_deskews_to_within_a_millimetre(box_plant):
     assert errors[False] > 2e-4
 
 
-def test_pose_caster_matches_the_line_caster_at_rest(box_plant):
-    """At a fixed angle, casting in the turntable frame equals casting the turned scene."""
+def test_casting_in_the_turntable_frame_equals_casting_the_turned_scene(box_plant):
+    """Rays turned by -theta against the scene at 0 are MuJoCo's own rays at theta (mj_ray)."""
     scene = build_scene(RigGeometry(), box_plant)
+    lidar = SimulatedLidar(scene, LIDAR, BeamGrid.of(LIDAR).beam_angles_rad())
     angles = np.radians([0.0, 33.0, 200.0])
-    d_ref, g_ref = RayCaster(scene, LIDAR).cast(angles)
-    d, g = PoseCaster(scene, LIDAR, nsim=2).cast(np.repeat(angles[:, None], LIDAR.n_beams, axis=1))
-    assert np.array_equal(g, g_ref)
-    assert np.allclose(d, d_ref, atol=1e-9)
+    per_line = lidar.cast_lines(angles, np.random.default_rng(0))
+    per_beam = lidar.cast_lines(np.repeat(angles[:, None], LIDAR.n_beams, axis=1), np.random.default_rng(0))
+    for field in ("range_m", "status", "geom_id"):
+        np.testing.assert_array_equal(getattr(per_line, field), getattr(per_beam, field))
+    model, data = scene.model, mujoco.MjData(scene.model)
+    geomid = np.zeros(1, dtype=np.int32)
+    origins, dirs = lidar.caster.origins_base, lidar.caster.dirs_base
+    hits = 0
+    for k, angle in enumerate(angles):
+        data.qpos[scene.turntable_qpos_adr] = angle
+        mujoco.mj_kinematics(model, data)
+        for b in range(0, LIDAR.n_beams, 7):
+            dist = mujoco.mj_ray(model, data, origins[b], dirs[b], LIDAR_GEOMGROUP, 1, scene.lidar_body_id, geomid)
+            assert per_line.geom_id[k, b] == geomid[0]
+            if dist >= 0 and per_line.status[k, b] == BeamStatus.OK:
+                assert per_line.range_m[k, b] == pytest.approx(dist, rel=1e-7, abs=1e-12)
+                hits += 1
+    assert hits > 50
 
 
 def test_dynamic_step_scan_settles_and_knows_its_angles(box_plant):
-    options = TurntableOptions()  # non-ideal default: 4096-tick encoder
-    ds = build_dynamic_scene(RigGeometry(), box_plant, options.dynamics)
+    options = TurntableOptions(physics="dynamic")  # non-ideal default: 4096-tick encoder
     schedule = StepScan(step_deg=30.0)
-    result = dynamic_step_and_shoot(ds, LIDAR, schedule, options, np.random.default_rng(0))
+    result = run_scan(RunConfig(sensor="ideal", scan=schedule, turntable=options), plant=box_plant)
     raw = result.raw
+    assert result.plan.motion == "physics"
     true = raw.true_turntable_angle_rad
     assert np.abs(true - schedule.angles_rad()[:, None]).max() < 3 * options.dynamics.settle_tolerance_rad
     # What the reconstruction believes is the encoder: within a tick or so of the truth.
@@ -210,35 +226,32 @@ def test_dynamic_step_scan_settles_and_knows_its_angles(box_plant):
     assert np.all(np.diff(raw.time_s[:, 0]) > 0)
     # Lines start on the free-running LiDAR's own clock.
     line_t0 = raw.time_s[:, 0] - LIDAR.beam_time_offsets_s()[0]
-    assert np.allclose(line_t0 / LIDAR.scan_period_s, np.round(line_t0 / LIDAR.scan_period_s))
+    assert np.allclose(line_t0 / LIDAR.scan_period_s, np.round(line_t0 / LIDAR.scan_period_s), atol=1e-6)
+    assert result.diagnostics["max_believed_minus_true_rad"] < 1.5 * units.RAD_PER_TICK
 
 
 def test_settle_timeout_is_an_error(box_plant):
     weak = dataclasses.replace(DEFAULT_SERVO, position_p_gain=DEFAULT_SERVO.position_p_gain / 20)
-    options = TurntableOptions(dynamics=TurntableDynamics(servo=weak, settle_timeout_s=0.2,
-                                                          max_tracking_error_rad=1.0))
-    ds = build_dynamic_scene(RigGeometry(), box_plant, options.dynamics)
+    options = TurntableOptions(physics="dynamic", dynamics=TurntableDynamics(
+        servo=weak, settle_timeout_s=0.2, max_tracking_error_rad=1.0))
     with pytest.raises(SimulationError, match="did not settle .* raise settle_tolerance_rad"):
-        dynamic_step_and_shoot(ds, LIDAR, StepScan(step_deg=90.0), options, np.random.default_rng(0))
+        run_scan(RunConfig(sensor="ideal", scan=StepScan(step_deg=90.0), turntable=options), plant=box_plant)
 
 
-def test_static_ideal_run_is_the_kinematic_scan(box_plant):
-    config = RunConfig(ideal=True, scan=StepScan(step_deg=45.0))
-    assert not config.turntable.uses_physics(config.ideal)
-    assert not RunConfig(ideal=False).turntable.uses_physics(False)
-    assert TurntableOptions(physics="dynamic").uses_physics(False)
-    assert TurntableOptions(physics="dynamic").uses_physics(True)
-    assert RunConfig(ideal=True, turntable=TurntableOptions(mode="continuous")).turntable.uses_physics(True)
+def test_the_plan_picks_the_turntable_motion():
+    assert plan_scan(RunConfig(ideal=True, scan=StepScan(step_deg=45.0))).motion == "kinematic"
+    assert plan_scan(RunConfig()).motion == "kinematic"
+    assert plan_scan(RunConfig(turntable=TurntableOptions(physics="dynamic"))).motion == "physics"
+    assert plan_scan(RunConfig(ideal=True, turntable=TurntableOptions(physics="dynamic"))).motion == "physics"
+    assert plan_scan(RunConfig(ideal=True, turntable=TurntableOptions(mode="continuous"))).motion == "kinematic"
+    assert plan_scan(RunConfig(turntable=TurntableOptions(mode="continuous"))).motion == "physics"
 
 
 def test_same_seed_same_scan_with_jitter(box_plant):
     dyn = TurntableDynamics(jitter=JitterConfig(torque_noise_nm=0.02, ripple_torque_nm=0.01))
-    options = TurntableOptions(mode="continuous", rpm=10, dynamics=dyn,
-                               encoder=EncoderConfig(noise_rad=1e-4))
-    runs = []
-    for seed in (3, 3, 4):
-        ds = build_dynamic_scene(RigGeometry(), box_plant, dyn)
-        runs.append(continuous_scan(ds, LIDAR, 30, options, np.random.default_rng(seed)).raw)
+    options = TurntableOptions(mode="continuous", rpm=10, dynamics=dyn, encoder=EncoderConfig(noise_rad=1e-4))
+    runs = [run_scan(RunConfig(seed=seed, sensor="ideal", scan=StepScan(sweep_deg=30), turntable=options),
+                     plant=box_plant).raw for seed in (3, 3, 4)]
     assert np.array_equal(runs[0].turntable_angle_rad, runs[1].turntable_angle_rad)
     assert np.array_equal(runs[0].range_m, runs[1].range_m, equal_nan=True)
     assert not np.array_equal(runs[0].turntable_angle_rad, runs[2].turntable_angle_rad)
@@ -271,11 +284,9 @@ def test_explicit_damping_under_rk4_names_implicitfast():
 
 
 def test_weak_servo_that_cannot_follow_stops_the_scan(box_plant):
-    dyn = scaled(1e-3)
-    options = TurntableOptions(mode="continuous", rpm=20, dynamics=dyn)
-    ds = build_dynamic_scene(RigGeometry(), box_plant, dyn)
+    options = TurntableOptions(mode="continuous", rpm=20, dynamics=scaled(1e-3))
     with pytest.raises(SimulationError, match="could not follow its profile"):
-        continuous_scan(ds, LIDAR, 90, options, np.random.default_rng(0))
+        run_scan(RunConfig(sensor="ideal", scan=StepScan(sweep_deg=90), turntable=options), plant=box_plant)
 
 
 @pytest.mark.parametrize("gain, timestep, integrator, inertia", [

@@ -16,10 +16,11 @@ def make_line(index: int, rng: np.random.Generator) -> JournalLine:
     range_m = rng.uniform(0.1, 2.0, N_BEAMS)
     range_m[rng.integers(N_BEAMS)] = np.nan
     return JournalLine(index=index, commanded_angle_rad=0.1 * index, reported_angle_rad=0.1 * index + 1e-4,
-                       cast_angle_rad=0.1 * index + 1e-4, time_s=0.5 * index, range_m=range_m,
+                       cast_angle_rad=0.1 * index + 1e-4, stamp_ns=500_000_000 * index, range_m=range_m,
                        status=rng.integers(0, 3, N_BEAMS).astype(np.uint8),
                        hit_class=rng.integers(0, 4, N_BEAMS).astype(np.uint8),
-                       geom_id=rng.integers(-1, 9, N_BEAMS).astype(np.int32))
+                       geom_id=rng.integers(-1, 9, N_BEAMS).astype(np.int32),
+                       intensity=rng.uniform(0, 1, N_BEAMS).astype(np.float32) if index % 2 else None)
 
 
 def header(identity=None, n_lines=5):
@@ -38,8 +39,11 @@ def write_lines(path, count, rng, head=None):
 def assert_same_lines(a, b):
     assert len(a) == len(b)
     for x, y in zip(a, b):
-        assert (x.index, x.commanded_angle_rad, x.reported_angle_rad, x.cast_angle_rad, x.time_s) == (
-            y.index, y.commanded_angle_rad, y.reported_angle_rad, y.cast_angle_rad, y.time_s)
+        assert (x.index, x.commanded_angle_rad, x.reported_angle_rad, x.cast_angle_rad, x.stamp_ns) == (
+            y.index, y.commanded_angle_rad, y.reported_angle_rad, y.cast_angle_rad, y.stamp_ns)
+        assert (x.intensity is None) == (y.intensity is None)
+        if x.intensity is not None:
+            np.testing.assert_array_equal(x.intensity, y.intensity)
         np.testing.assert_array_equal(x.range_m, y.range_m)
         for name in ("status", "hit_class", "geom_id"):
             np.testing.assert_array_equal(getattr(x, name), getattr(y, name))

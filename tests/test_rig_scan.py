@@ -15,15 +15,13 @@ from plantsim.turntable import units
 from plantsim.hardware.dynamixel.emulator import OVERLOAD, DynamixelEmulator
 from plantsim.errors import HardwareError, JournalError, ScanInterruptedError
 from plantsim.scan.journal import read_journal
-from plantsim.plant.mesh import plant_from_arrays
 from plantsim.cloud.reconstruct import base_to_turntable, points_base_from_ranges
-from plantsim.scan.rig import journal_path_for, run_rig_scan, write_rig_result
-from plantsim.sensor.casting import RayCaster, gate_ranges
+from plantsim.scan.pipeline import journal_path_for, run_scan, step_and_shoot, write_result
+from plantsim.scan.raw import BeamGrid
 from plantsim.scan.schedule import StepScan
-from plantsim.scan.pipeline import step_and_shoot
-from plantsim.rig.scene import HitClass, build_scene
+from plantsim.rig.scene import HitClass
+from plantsim.sensor.lidar import SimulatedLidar
 from plantsim.sensor.spec import BeamStatus
-from plantsim.scan.session import SimulatedLidar, UrgLidar, run_session
 from plantsim.hardware.dynamixel.turntable import ServoTurntable
 from plantsim.turntable.table import SimulatedTurntable
 
@@ -41,12 +39,17 @@ def cylinder_config(tmp_path, name="cyl.ply", step_deg=10.0):
     mesh = trimesh.creation.cylinder(radius=0.05, height=0.3, sections=512)
     path = tmp_path / "cylinder.stl"
     mesh.export(path)
-    return RunConfig(plant=PlantOptions(mesh=str(path)), scan=StepScan(step_deg=step_deg),
+    return RunConfig(plant=PlantOptions(mesh=str(path)), scan=StepScan(step_deg=step_deg), sensor="ideal",
                      output=OutputOptions(path=str(tmp_path / name)))
 
 
 def maize_config(tmp_path, name, step_deg=10.0):
-    return RunConfig(scan=StepScan(step_deg=step_deg), output=OutputOptions(path=str(tmp_path / name)))
+    return RunConfig(scan=StepScan(step_deg=step_deg), sensor="ideal", output=OutputOptions(path=str(tmp_path / name)))
+
+
+def run_rig_scan(config, table, **options):
+    """The one scan pipeline with a turntable driven line by line."""
+    return run_scan(config, turntable=table, **options)
 
 
 class Interrupt(Exception):
@@ -73,9 +76,9 @@ def assert_raw_equal(a, b):
 
 def cast_at(scene, lidar, angles_rad):
     """Ranges and geoms of a kinematic scan at the given angles (the obvious reference)."""
-    dist, geom = RayCaster(scene, lidar).cast(np.asarray(angles_rad))
-    range_m, status = gate_ranges(dist, lidar)
-    return range_m, status, geom
+    lines = SimulatedLidar(scene, lidar, BeamGrid.of(lidar).beam_angles_rad()).cast_lines(
+        np.asarray(angles_rad), np.random.default_rng(0))
+    return lines.range_m, lines.status, lines.geom_id
 
 
 def matched_points(raw_a, raw_b):
@@ -95,7 +98,7 @@ def matched_points(raw_a, raw_b):
 
 def test_simulated_session_is_step_and_shoot_bit_for_bit(tmp_path):
     config = cylinder_config(tmp_path, step_deg=30)
-    result = run_rig_scan(config, SimulatedTurntable()).result
+    result = run_rig_scan(config, SimulatedTurntable())
     reference = step_and_shoot(result.scene, config.lidar, config.scan)
     assert_raw_equal(result.raw, reference)
 
@@ -126,9 +129,9 @@ def test_interrupt_and_resume_gives_every_line_once(tmp_path):
     assert resumed.lines_resumed == 5 and len(table.moves) == 12 - 5
     assert table.moves[0] == pytest.approx(math.radians(150))
     uninterrupted = run_rig_scan(cylinder_config(tmp_path, "whole.ply", step_deg=30), SimulatedTurntable())
-    assert_raw_equal(resumed.result.raw, uninterrupted.result.raw)
+    assert_raw_equal(resumed.raw, uninterrupted.raw)
     assert [line.index for line in read_journal(journal).lines] == list(range(12))
-    write_rig_result(resumed)
+    write_result(resumed)
     assert not journal.exists()
 
 
@@ -161,17 +164,10 @@ def test_hardware_failure_keeps_the_journal(tmp_path):
     assert len(read_journal(journal_path_for(config.output.path)).lines) == 3
 
 
-def test_real_lidar_is_not_available_yet():
-    with pytest.raises(HardwareError, match="real URG LiDAR is not available yet"):
-        UrgLidar("/dev/ttyACM0")
-
-
 def test_session_validates_settle_time(tmp_path):
     config = cylinder_config(tmp_path)
-    scene = build_scene(config.rig)
     with pytest.raises(ValueError, match="settle_s must be finite and >= 0, got -1"):
-        run_session(turntable=SimulatedTurntable(), source=SimulatedLidar(scene, config.lidar),
-                    schedule=config.scan, journal_path=tmp_path / "j", identity={}, settle_s=-1)
+        run_rig_scan(config, SimulatedTurntable(), settle_s=-1)
 
 
 # --- hardware in the loop: the emulated servo ---------------------------------------
@@ -195,7 +191,7 @@ def shaft_recorder(emulator, into):
 
 def check_hil_against_simulated(hil, sim, truth, config):
     """The HIL scan against a simulated one: angles per line, then points. Returns numbers."""
-    raw, reference = hil.result.raw, sim.result.raw
+    raw, reference = hil.raw, sim.raw
     commanded = config.scan.angles_rad()
     reported = raw.turntable_angle_rad[:, 0]
     # The servo stops within the move tolerance (2 ticks) of the goal tick, which is
@@ -206,7 +202,7 @@ def check_hil_against_simulated(hil, sim, truth, config):
     assert np.abs(shaft_error).max() <= QUANTUM_RAD
     # The rays were cast at the reported angle and reconstructed with it: the HIL lines
     # are exactly a kinematic scan at the reported angles.
-    range_m, status, geom = cast_at(hil.result.scene, config.lidar, reported)
+    range_m, status, geom = cast_at(hil.scene, config.lidar, reported)
     np.testing.assert_array_equal(raw.range_m, range_m)
     np.testing.assert_array_equal(raw.geom_id, geom)
     np.testing.assert_array_equal(raw.true_turntable_angle_rad, raw.turntable_angle_rad)
@@ -221,7 +217,7 @@ def check_hil_against_simulated(hil, sim, truth, config):
     plant = hit_class == HitClass.PLANT
     return {"angle_error_max_ticks": float(np.abs(angle_error).max() / QUANTUM_RAD),
             "shaft_error_max_ticks": float(np.abs(shaft_error).max() / QUANTUM_RAD),
-            "points_hil": len(hil.result.cloud), "points_sim": len(sim.result.cloud),
+            "points_hil": len(hil.cloud), "points_sim": len(sim.cloud),
             "fraction_within": float(within.mean()), "fraction_plant_within": float(within[plant].mean()),
             "median_distance_m": float(np.median(distance)), "median_bound_m": float(np.median(rho) * QUANTUM_RAD),
             "max_distance_m": float(distance.max())}
@@ -246,7 +242,7 @@ def test_hil_scan_of_the_bundled_maize_matches_the_simulated_scan(tmp_path, emul
     truth = []
     with ServoTurntable.connect(emulator.port_path, **FAST) as table:
         hil = run_rig_scan(config, table, progress=shaft_recorder(emulator, truth))
-        path = write_rig_result(hil)
+        path = write_result(hil)
     sim = run_rig_scan(maize_config(tmp_path, "sim.las"), SimulatedTurntable())
     numbers = check_hil_against_simulated(hil, sim, truth, config)
     print(numbers)
@@ -258,8 +254,10 @@ def test_hil_scan_of_the_bundled_maize_matches_the_simulated_scan(tmp_path, emul
     import json
 
     side = json.loads(path.with_name(path.name + ".json").read_text())
-    assert side["rig"]["turntable"]["port"] == emulator.port_path
-    assert side["rig"]["turntable"]["model"] == "XM430-W350" and side["rig"]["turntable"]["firmware"] == 46
+    turntable = side["simulated"]["turntable"]
+    assert turntable["motion"] == "hardware" and turntable["port"] == emulator.port_path
+    assert turntable["model"] == "XM430-W350" and turntable["firmware"] == 46
+    assert side["simulated"]["lidar"]["sensor"] == "ideal"
     assert side["journal"]["kept"] is False and not journal_path_for(path).exists()
 
 
@@ -277,8 +275,8 @@ def test_lost_reply_mid_scan_is_a_clear_error_then_resume_completes(tmp_path, em
     lines = read_journal(journal_path_for(config.output.path)).lines
     assert [line.index for line in lines] == list(range(12))
     np.testing.assert_array_equal([line.commanded_angle_rad for line in lines], config.scan.angles_rad())
-    range_m, _, _ = cast_at(resumed.result.scene, config.lidar, resumed.result.raw.turntable_angle_rad[:, 0])
-    np.testing.assert_array_equal(resumed.result.raw.range_m, range_m)
+    range_m, _, _ = cast_at(resumed.scene, config.lidar, resumed.raw.turntable_angle_rad[:, 0])
+    np.testing.assert_array_equal(resumed.raw.range_m, range_m)
 
 
 def test_unplugged_adapter_mid_scan_then_resume_on_a_new_port(tmp_path):
@@ -292,7 +290,7 @@ def test_unplugged_adapter_mid_scan_then_resume_on_a_new_port(tmp_path):
     with DynamixelEmulator(ids=(1,), speed_factor=SPEED_FACTOR) as second:
         with ServoTurntable.connect(second.port_path, **FAST) as table:
             resumed = run_rig_scan(config, table, resume=True)
-    assert resumed.lines_resumed == 6 and resumed.result.raw.n_lines == 12
+    assert resumed.lines_resumed == 6 and resumed.raw.n_lines == 12
     assert [line.index for line in read_journal(journal_path_for(config.output.path)).lines] == list(range(12))
 
 
@@ -309,7 +307,7 @@ def test_one_lost_reply_is_retried_and_the_scan_completes(tmp_path, emulator):
     config = cylinder_config(tmp_path, step_deg=30)
     with ServoTurntable.connect(emulator.port_path, **FAST) as table:
         result = run_rig_scan(config, table, progress=stop_after(3, lambda: emulator.inject_no_reply(1, count=1)))
-    assert result.result.raw.n_lines == 12
+    assert result.raw.n_lines == 12
 
 
 def test_servo_refuses_more_than_one_turn(tmp_path, emulator):

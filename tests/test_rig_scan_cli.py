@@ -33,10 +33,11 @@ def scan_args(emulator, cylinder, out, *extra):
 def test_rig_scan_writes_cloud_and_sidecar_and_removes_the_journal(tmp_path, emulator, cylinder, capsys):
     out = tmp_path / "plant.ply"
     assert cli.main(scan_args(emulator, cylinder, out)) == 0, capsys.readouterr().err
-    assert "from 12 lines x 683 beams to" in capsys.readouterr().out
+    assert "from 12 lines x 683 beams (realistic sensor, hardware turntable, step mode) to" in capsys.readouterr().out
     side = json.loads((tmp_path / "plant.ply.json").read_text())
-    assert side["rig"]["turntable"]["kind"] == "dynamixel" and side["rig"]["turntable"]["id"] == 1
-    assert side["rig"]["turntable"]["baud_bps"] == 57600 and side["rig"]["lidar"]["kind"] == "simulated"
+    turntable, lidar = side["simulated"]["turntable"], side["simulated"]["lidar"]
+    assert turntable["kind"] == "dynamixel" and turntable["id"] == 1 and turntable["motion"] == "hardware"
+    assert turntable["baud_bps"] == 57600 and lidar["kind"] == "simulated" and lidar["sensor"] == "realistic"
     assert side["config"]["scan"]["step_deg"] == 30
     assert out.exists() and not (tmp_path / "plant.ply.journal").exists()
 
@@ -90,5 +91,5 @@ def test_unreachable_servo_and_real_lidar_give_clear_errors(tmp_path, emulator, 
     assert cli.main(wrong_id) == 1
     assert "ID 7 at 57600 bps failed" in capsys.readouterr().err
     assert cli.main(scan_args(emulator, cylinder, out, "--lidar", "urg")) == 2
-    assert "real URG LiDAR is not available yet" in capsys.readouterr().err
+    assert "real URG LiDAR is not available in rig scans yet" in capsys.readouterr().err
     assert not (tmp_path / "plant.ply.journal").exists()

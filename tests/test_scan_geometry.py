@@ -14,7 +14,8 @@ import pytest
 from plantsim.sensor import casting as scan_module
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.cloud.reconstruct import reconstruct
-from plantsim.rig.geometry import RigGeometry
+from plantsim.rig.geometry import RigGeometry, beam_dirs_lidar
+from plantsim.scan.raw import BeamGrid
 from plantsim.scan.schedule import StepScan
 from plantsim.scan.pipeline import step_and_shoot
 from plantsim.rig.scene import HitClass, build_spec, build_scene, compile_scene
@@ -95,13 +96,14 @@ def test_hand_computed_beam_on_a_box_face(box_mesh):
     plant = plant_from_arrays(vertices, faces, T_turntable_mesh=make_T(t=[0.0, 0.0, 0.06]))
     rig = RigGeometry(lidar_distance_m=0.35, lidar_height_m=0.05)
     raw = step_and_shoot(build_scene(rig, plant), URG_04LX_UG01, StepScan(step_deg=90))
-    # At 0 deg the +X face (x = 0.02) faces the sensor: range 0.35 - 0.02.
-    assert raw.range_m[0, 340] == pytest.approx(0.33, abs=1e-9)
+    # At 0 deg the +X face (x = 0.02) faces the sensor: range 0.35 - 0.02. Ranges are
+    # float32 values, as a LaserScan carries them: exact to half a float32 step.
+    assert raw.range_m[0, 340] == np.float32(0.33)
     # At +90 deg (counter-clockwise) the box's -Y face (y = -0.03) turns to face +X.
-    assert raw.range_m[1, 340] == pytest.approx(0.32, abs=1e-9)
+    assert raw.range_m[1, 340] == np.float32(0.32)
     cloud = reconstruct(raw)
     first = (cloud.scan_index == 1) & (cloud.beam_index == 340)
-    np.testing.assert_allclose(cloud.points_turntable[first][0], [0.0, -0.03, 0.05], atol=1e-8)
+    np.testing.assert_allclose(cloud.points_turntable[first][0], [0.0, -0.03, 0.05], atol=1e-7)
 
 
 def test_axis_trap_is_guarded(monkeypatch):
@@ -115,7 +117,7 @@ def test_axis_trap_is_guarded(monkeypatch):
     lidar = URG_04LX_UG01.replace(n_beams=401, angle_min_deg=-20, angle_increment_deg=0.1)
     scene = build_scene(rig, plant)
     origin = rig.T_base_lidar()[:3, 3]
-    dirs = scan_module.beam_dirs_lidar(lidar.beam_angles_rad()) @ rig.T_base_lidar()[:3, :3].T
+    dirs = beam_dirs_lidar(BeamGrid.of(lidar).beam_angles_rad()) @ rig.T_base_lidar()[:3, :3].T
     reference = brute_force_first_hit(origin, dirs, plant.vertices_turntable, plant.faces)
     assert np.isfinite(reference).sum() > 100
 

@@ -18,8 +18,9 @@ from plantsim.scan.pipeline import step_and_shoot
 from plantsim.rig.scene import build_spec, compile_scene
 from plantsim.sensor.spec import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
 from plantsim.sensor.model import COS_INCIDENCE_FLOOR, SensorModel, apply_sensor, range_sigma
-from plantsim.sensor.casting import FootprintCaster
-from plantsim.scan.pipeline import realistic_step_and_shoot
+from plantsim.scan.raw import BeamGrid
+from plantsim.sensor.lidar import SimulatedLidar
+from plantsim.scan.pipeline import step_and_shoot as _sas
 
 RIG = RigGeometry()  # LiDAR at x = 0.35 m, z = 0.15 m; beam 0 points along base -X.
 X_LIDAR = RIG.lidar_distance_m
@@ -45,7 +46,7 @@ def wall(distance_m: float, *, tilt_rad: float = 0.0, half_m: float = 2.0) -> di
 
 def scan(scene, model, *, lidar=URG_04LX_UG01, lines=1, seed=0):
     schedule = StepScan(step_deg=1.0, sweep_deg=float(lines))
-    return realistic_step_and_shoot(scene, lidar, schedule, model, rng=np.random.default_rng(seed))
+    return _sas(scene, lidar, schedule, model=model, rng=np.random.default_rng(seed))
 
 
 NO_NOISE = SensorModel(range_noise=False, quantise=False)
@@ -255,8 +256,7 @@ def test_everything_off_is_the_ideal_scan_bit_for_bit():
     scene = scene_with(wall(0.5, tilt_rad=0.3), wall(0.35, half_m=0.02))
     schedule = StepScan(step_deg=10.0)
     ideal = step_and_shoot(scene, URG_04LX_UG01, schedule)
-    off = realistic_step_and_shoot(scene, URG_04LX_UG01, schedule, SensorModel.off(),
-                                   rng=np.random.default_rng(0))
+    off = _sas(scene, URG_04LX_UG01, schedule, model=SensorModel.off(), rng=np.random.default_rng(0))
     for field in ("range_m", "status", "geom_id", "hit_class", "time_s"):
         np.testing.assert_array_equal(getattr(off, field), getattr(ideal, field))
     assert off.intensity is None and ideal.intensity is None
@@ -264,8 +264,8 @@ def test_everything_off_is_the_ideal_scan_bit_for_bit():
 
 def test_beam_times_follow_the_mirror_steps():
     scene = scene_with(wall(0.5))
-    raw = realistic_step_and_shoot(scene, URG_04LX_UG01, StepScan(step_deg=90.0, step_time_s=0.5),
-                                   SensorModel(), rng=np.random.default_rng(0))
+    raw = _sas(scene, URG_04LX_UG01, StepScan(step_deg=90.0, step_time_s=0.5), model=SensorModel(),
+               rng=np.random.default_rng(0))
     # SCIP 2.0: step k at t0 + k / 1024 x 100 ms; beam 0 is step 44.
     k = 44 + np.arange(683)
     np.testing.assert_allclose(raw.time_s[0], k / 1024 * 0.1)
@@ -277,8 +277,9 @@ def test_beam_times_follow_the_mirror_steps():
 
 def test_adaptive_footprint_refines_only_edges():
     scene = scene_with(wall(0.5))
-    caster = FootprintCaster(scene, URG_04LX_UG01, SensorModel())
-    caster.cast(np.zeros(1))
+    caster = SimulatedLidar(scene, URG_04LX_UG01, BeamGrid.of(URG_04LX_UG01).beam_angles_rad(),
+                            model=SensorModel())
+    caster.cast_lines(np.zeros(1), np.random.default_rng(0))
     # Only beams whose footprint crosses a boundary (wall edges, the bench, the
     # turntable, the post) are refined, not the flat wall.
     assert 0 < caster.n_refined < 60

@@ -13,18 +13,26 @@ from plantsim.sensor.spec import PRESETS
 log = logging.getLogger("plantsim")
 
 
-def _scan_overrides(args: argparse.Namespace) -> dict:
+def _opt(args: argparse.Namespace, name: str):
+    """An option's value, or None where this command does not have it."""
+    return getattr(args, name, None)
+
+
+def scan_overrides(args: argparse.Namespace) -> dict:
     """Command-line options as a nested dict in the TOML layout (only those given)."""
     pairs = {
-        ("plant", "mesh"): args.mesh, ("plant", "units"): args.units, ("plant", "up"): args.up,
-        ("plant", "placement"): args.placement,
-        ("scan", "step_deg"): args.step_deg, ("scan", "sweep_deg"): args.sweep_deg,
-        ("output", "path"): args.output, ("output", "plant_only"): args.plant_only or None,
-        ("seed",): args.seed, ("ideal",): args.ideal or None, ("threads",): args.threads,
-        ("turntable", "mode"): args.mode, ("turntable", "rpm"): args.rpm,
-        ("turntable", "physics"): args.physics,
-        ("turntable", "deskew"): False if args.no_deskew else None,
-        ("lidar", "preset"): args.lidar, ("sensor_model", "footprint_rings"): args.footprint_rings,
+        ("plant", "mesh"): _opt(args, "mesh"), ("plant", "units"): _opt(args, "units"), ("plant", "up"): _opt(args, "up"),
+        ("plant", "placement"): _opt(args, "placement"),
+        ("scan", "step_deg"): _opt(args, "step_deg"), ("scan", "sweep_deg"): _opt(args, "sweep_deg"),
+        ("output", "path"): _opt(args, "output"), ("output", "plant_only"): _opt(args, "plant_only") or None,
+        ("seed",): _opt(args, "seed"), ("ideal",): _opt(args, "ideal") or None, ("threads",): _opt(args, "threads"),
+        ("sensor",): _opt(args, "sensor"), ("caster",): _opt(args, "caster"),
+        ("turntable", "mode"): _opt(args, "mode"), ("turntable", "rpm"): _opt(args, "rpm"),
+        ("turntable", "physics"): _opt(args, "physics"),
+        ("turntable", "ideal"): True if _opt(args, "turntable") == "ideal" else None,
+        ("output", "raw"): _opt(args, "raw"),
+        ("turntable", "deskew"): False if _opt(args, "no_deskew") else None,
+        ("lidar", "preset"): _opt(args, "lidar_preset"), ("sensor_model", "footprint_rings"): _opt(args, "footprint_rings"),
     }
     out: dict = {}
     for key, value in pairs.items():
@@ -54,22 +62,31 @@ def _progress_bar(total_label: str):
     return update, lambda: bar.close() if bar is not None else None
 
 
-def cmd_scan(args: argparse.Namespace) -> int:
-    from plantsim.scan.config import config_from_dict, load_toml, merge
-    from plantsim.cloud.export import check_output_path
-    from plantsim.scan.pipeline import run_scan, write_result
+def resolve_config(args: argparse.Namespace, overrides: dict):
+    """The RunConfig of a command: its TOML file (``--config``), then the command-line options."""
+    from pathlib import Path
 
-    t0 = time.perf_counter()
+    from plantsim.scan.config import config_from_dict, load_toml, merge
+
     data, base_dir = {}, None
     if args.config:
         data = load_toml(args.config)
-        from pathlib import Path
-
         base_dir = Path(args.config).resolve().parent
-    overrides = _scan_overrides(args)
+    if _opt(args, "turntable") == "dynamic":
+        overrides.setdefault("turntable", {})["physics"] = "dynamic"
     # A mesh given on the command line is relative to the working directory.
-    config = config_from_dict(merge(data, overrides), base_dir=base_dir if not args.mesh else None)
+    return config_from_dict(merge(data, overrides), base_dir=base_dir if not args.mesh else None)
+
+
+def cmd_scan(args: argparse.Namespace) -> int:
+    from plantsim.cloud.export import check_output_path
+    from plantsim.scan.plan import plan_scan
+    from plantsim.scan.pipeline import run_scan, write_result
+
+    t0 = time.perf_counter()
+    config = resolve_config(args, scan_overrides(args))
     check_output_path(config.output.path)  # Fail before any work, not after it.
+    plan_scan(config)
     progress, close = _progress_bar("scan")
     try:
         result = run_scan(config, progress=progress)
@@ -80,13 +97,57 @@ def cmd_scan(args: argparse.Namespace) -> int:
 
         result = with_evaluation(result)
     path = write_result(result)
-    plant_points = result.cloud.counts_by_class()["plant"]
-    print(f"wrote {len(result.cloud):,} points ({plant_points:,} on the plant) from "
-          f"{result.raw.n_lines} lines x {result.raw.n_beams} beams to {path} in "
-          f"{time.perf_counter() - t0:.2f} s")
+    print(summary_line(result, path, time.perf_counter() - t0))
     if result.evaluation is not None:
         print(_evaluation_line(result.evaluation))
     return 0
+
+
+def summary_line(result, path, seconds: float) -> str:
+    """One line: what was written, from what, by which parts."""
+    counts = result.cloud.counts_by_class()
+    rig_points = counts["turntable"] + counts["rig"]
+    plan = result.plan
+    what = f"{plan.sensor} sensor, {plan.motion} turntable, {plan.mode} mode"
+    resumed = f" ({result.lines_resumed} resumed from the journal)" if result.lines_resumed else ""
+    raw = f" and the raw bag to {result.config.output.raw}" if result.config.output.raw else ""
+    return (f"wrote {len(result.cloud):,} points ({counts['plant']:,} on the plant, {rig_points:,} on the rig) "
+            f"from {result.raw.n_lines} lines{resumed} x {result.raw.n_beams} beams ({what}) to {path}{raw} "
+            f"in {seconds:.2f} s")
+
+
+def add_common_scan_options(parser: argparse.ArgumentParser, *, preset_flag: str = "--lidar") -> None:
+    """Options shared by ``scan`` and ``rig scan``: plant, schedule, sensor, output."""
+    parser.add_argument("mesh", nargs="?", help="plant mesh; default: the bundled maize")
+    parser.add_argument("-o", "--output", help="output point cloud (default scan.las)")
+    parser.add_argument("--config", help="TOML file with any of the options")
+    parser.add_argument("--units", choices=["m", "cm", "mm"], help="the mesh file's unit (default m)")
+    parser.add_argument("--up", choices=["x", "y", "z"], help="the mesh file's up axis (default z)")
+    parser.add_argument("--placement", choices=["base", "bbox", "none"],
+                        help="how the plant sits on the disk (default base: base centred on the axis)")
+    parser.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
+    parser.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360)")
+    parser.add_argument("--seed", type=int, help="seed of all randomness (default 0)")
+    parser.add_argument("--ideal", action="store_true",
+                        help="everything perfect: the ideal sensor (one ray per beam, no noise) and a "
+                             "perfect turntable (exact angles, exact encoder)")
+    parser.add_argument("--sensor", choices=["ideal", "realistic"],
+                        help="the LiDAR alone: ideal (exact first hits) or realistic (footprint, noise, "
+                             "intensity, dropouts; the default)")
+    parser.add_argument(preset_flag, dest="lidar_preset", choices=sorted(PRESETS),
+                        help="sensor preset (default urg-04lx-ug01)")
+    parser.add_argument("--footprint-rings", type=int,
+                        help="rings of sub-rays per beam footprint: 0 one ray, 1 7, 2 19 (default), 3 37")
+    parser.add_argument("--plant-only", action="store_true", help="write only points on the plant")
+    parser.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
+    parser.add_argument("--caster", choices=["mujoco", "embree", "auto"],
+                        help="ray caster: mujoco (default), embree (needs plantsim[fast]), auto")
+    parser.add_argument("--raw", metavar="DIR",
+                        help="also write the raw record (every beam, encoder readings, rig geometry, "
+                             "ground truth) as a ROS 2 bag (MCAP) in DIR")
+    parser.add_argument("--no-deskew", action="store_true",
+                        help="reconstruct with one angle per line (the commanded angle in step mode, the "
+                             "reading at the line's start in continuous mode), as a naive rig does")
 
 
 def _evaluation_line(evaluation) -> str:
@@ -104,6 +165,31 @@ def _evaluation_line(evaluation) -> str:
     return text
 
 
+def cmd_reconstruct(args: argparse.Namespace) -> int:
+    from plantsim.cloud.bag import read_raw
+    from plantsim.cloud.export import check_output_path, write_cloud
+    from plantsim.cloud.reconstruct import reconstruct
+
+    path = check_output_path(args.output)
+    raw, metadata = read_raw(args.raw)
+    if args.angle_mode:
+        raw = raw.replace(angle_mode=args.angle_mode)
+    cloud = reconstruct(raw)
+    if args.plant_only:
+        if raw.true_turntable_angle_rad is None:
+            raise ValueError(f"--plant-only needs the ground truth of what each beam hit, and {args.raw} has "
+                             "none (a real scan): drop --plant-only")
+        cloud = cloud.plant_only()
+    sidecar = {"plantsim_sidecar": 2, "output": str(path), "reconstructed_from": str(args.raw),
+               "angle_mode": raw.angle_mode, "scan_info": metadata,
+               "frames": {"T_base_lidar": raw.T_base_lidar.tolist()},
+               "counts": {**raw.counts(), "points_written": len(cloud)}}
+    write_cloud(path, cloud, sidecar=sidecar)
+    print(f"wrote {len(cloud):,} points from {raw.n_lines} lines x {raw.n_beams} beams ({raw.angle_mode} "
+          f"angles) to {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="plantsim", description="Simulate a 2D-LiDAR + turntable plant scanner.")
@@ -114,39 +200,37 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Scan a plant mesh (STL/OBJ/PLY) on the simulated rig and "
                                       "write a point cloud (.las .ply .pcd .txt .xyz) with a "
                                       "sidecar JSON beside it.")
-    scan.add_argument("mesh", nargs="?", help="plant mesh; default: the bundled maize")
-    scan.add_argument("-o", "--output", help="output point cloud (default scan.las)")
-    scan.add_argument("--config", help="TOML file with any of the options")
-    scan.add_argument("--units", choices=["m", "cm", "mm"], help="the mesh file's unit (default m)")
-    scan.add_argument("--up", choices=["x", "y", "z"], help="the mesh file's up axis (default z)")
-    scan.add_argument("--placement", choices=["base", "bbox", "none"],
-                      help="how the plant sits on the disk (default base: base centred on the axis)")
-    scan.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
-    scan.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360)")
-    scan.add_argument("--seed", type=int, help="seed of all randomness (default 0)")
-    scan.add_argument("--ideal", action="store_true",
-                      help="perfect geometry: one ray per beam, no noise, no intensity, no dropouts")
-    scan.add_argument("--lidar", choices=sorted(PRESETS),
-                      help="sensor preset (default urg-04lx-ug01)")
-    scan.add_argument("--footprint-rings", type=int,
-                      help="rings of sub-rays per beam footprint: 0 one ray, 1 7, 2 19 (default), 3 37")
-    scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
-    scan.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
+    add_common_scan_options(scan)
     scan.add_argument("--mode", choices=["step", "continuous"],
                       help="step: move, settle, scan a line; continuous: the table turns while the "
                            "LiDAR scans (default step)")
+    scan.add_argument("--turntable", choices=["ideal", "dynamic"],
+                      help="the turntable alone: ideal (a perfect motor and encoder) or dynamic (the "
+                           "servo in MuJoCo with its jitter and encoder); default: kinematic step scans, "
+                           "dynamic continuous scans, dynamic whenever servo or jitter settings are given")
     scan.add_argument("--physics", choices=["auto", "kinematic", "dynamic"],
-                      help="turntable physics: auto (default: kinematic step scans, dynamic continuous "
-                           "scans), kinematic, or dynamic (the servo in MuJoCo)")
+                      help="turntable physics (TOML [turntable] physics): auto, kinematic or dynamic")
     scan.add_argument("--rpm", type=float, help="continuous mode's turntable speed, rpm (default 1)")
-    scan.add_argument("--no-deskew", action="store_true",
-                      help="reconstruct with one angle per line, as a naive rig does")
     scan.add_argument("--evaluate", action="store_true",
                       help="measure the scan against its truth: the plant points' distance to the "
                            "placed mesh, Chamfer distance, coverage and, when an exact-traits file "
                            "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh, "
                            "trait errors; written to the sidecar's \"evaluation\" and timings_s")
     scan.set_defaults(func=cmd_scan)
+
+    reconstruct = sub.add_parser(
+        "reconstruct", help="rebuild a point cloud from a raw scan (ROS 2 bag)",
+        description="Rebuild the point cloud of a raw record written with --raw (or recorded on a rig with "
+                    "the same conventions: sensor_msgs/LaserScan on /scan, the turntable's "
+                    "sensor_msgs/JointState on /turntable/joint_states, TF base -> lidar), from what a real "
+                    "rig knows: ranges, beam times, encoder readings and the rig geometry.")
+    reconstruct.add_argument("raw", metavar="DIR", help="the bag folder")
+    reconstruct.add_argument("-o", "--output", required=True, help="output point cloud (.las .ply .pcd .txt .xyz)")
+    reconstruct.add_argument("--plant-only", action="store_true",
+                             help="only points the ground truth says hit the plant (simulated bags)")
+    reconstruct.add_argument("--angle-mode", choices=["interpolate", "line", "commanded"],
+                             help="override the bag's rule for the turntable angle of each beam")
+    reconstruct.set_defaults(func=cmd_reconstruct)
 
     from plantsim.cli.rig import add_rig_commands
     from plantsim.cli.study import add_study_command

@@ -58,21 +58,15 @@ def add_rig_commands(subparsers: argparse._SubParsersAction) -> argparse._SubPar
 
 def add_rig_scan_command(rig_commands: argparse._SubParsersAction) -> None:
     """Registers ``rig scan`` on the ``rig`` command's subparsers."""
+    from plantsim.cli.app import add_common_scan_options
+
     scan = rig_commands.add_parser(
         "scan", help="scan with the turntable servo (the LiDAR is simulated at its reported angle)",
-        description="Turns the servo through the schedule and takes one simulated LiDAR line at each "
-        "reported angle (hardware in the loop). Each line is journaled to OUT.journal as it "
-        "arrives; after a fault or Ctrl-C, run the same command with --resume.")
+        description="Turns the servo through the schedule and takes one simulated LiDAR line (ideal or "
+        "realistic sensor) at each reported angle (hardware in the loop). Each line is journaled to "
+        "OUT.journal as it arrives; after a fault or Ctrl-C, run the same command with --resume.")
     _add_connection_arguments(scan)
-    scan.add_argument("mesh", nargs="?", help="plant mesh; default: the bundled maize")
-    scan.add_argument("-o", "--output", help="output point cloud (default scan.las)")
-    scan.add_argument("--config", help="TOML file with any of the options of `plantsim scan`")
-    scan.add_argument("--units", choices=["m", "cm", "mm"], help="the mesh file's unit (default m)")
-    scan.add_argument("--up", choices=["x", "y", "z"], help="the mesh file's up axis (default z)")
-    scan.add_argument("--placement", choices=["base", "bbox", "none"], help="how the plant sits on the disk")
-    scan.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
-    scan.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360; at most one turn)")
-    scan.add_argument("--plant-only", action="store_true", help="write only points on the plant")
+    add_common_scan_options(scan, preset_flag="--lidar-model")
     scan.add_argument("--resume", action="store_true",
                       help="continue the scan journaled in OUT.journal from its last complete line")
     scan.add_argument("--keep-journal", action="store_true",
@@ -86,41 +80,23 @@ def add_rig_scan_command(rig_commands: argparse._SubParsersAction) -> None:
     scan.set_defaults(func=run_rig_scan)
 
 
-def _rig_scan_config(args: argparse.Namespace):
-    """The resolved RunConfig: TOML file, then command-line options."""
-    from pathlib import Path
-
-    from plantsim.scan.config import config_from_dict, load_toml, merge
-
-    data, base_dir = {}, None
-    if args.config:
-        data = load_toml(args.config)
-        base_dir = Path(args.config).resolve().parent
-    pairs = {("plant", "mesh"): args.mesh, ("plant", "units"): args.units, ("plant", "up"): args.up,
-             ("plant", "placement"): args.placement, ("scan", "step_deg"): args.step_deg,
-             ("scan", "sweep_deg"): args.sweep_deg, ("output", "path"): args.output,
-             ("output", "plant_only"): args.plant_only or None}
-    overrides: dict = {}
-    for (section, key), value in pairs.items():
-        if value is not None:
-            overrides.setdefault(section, {})[key] = value
-    # A mesh given on the command line is relative to the working directory.
-    return config_from_dict(merge(data, overrides), base_dir=base_dir if not args.mesh else None)
-
-
 def run_rig_scan(args: argparse.Namespace) -> int:
     import time
 
-    from plantsim.cli.app import _progress_bar
-    from plantsim.errors import HardwareError, ScanInterruptedError
+    from plantsim.cli.app import _progress_bar, resolve_config, scan_overrides, summary_line
     from plantsim.cloud.export import check_output_path
-    from plantsim.scan.rig import journal_path_for, run_rig_scan as rig_scan, write_rig_result
-    from plantsim.scan.session import UrgLidar
+    from plantsim.errors import HardwareError, ScanInterruptedError
     from plantsim.hardware.dynamixel.turntable import ServoTurntable
+    from plantsim.scan.pipeline import journal_path_for, run_scan, write_result
+    from plantsim.scan.plan import plan_scan
 
     t0 = time.perf_counter()
-    config = _rig_scan_config(args)
+    if args.lidar == "urg":
+        raise HardwareError("a real URG LiDAR is not available in rig scans yet: plantsim's rig scan "
+                            "casts the simulated LiDAR at the servo's reported angle; use --lidar sim")
+    config = resolve_config(args, scan_overrides(args))
     output = check_output_path(config.output.path)  # fail before the servo moves
+    plan_scan(config, hardware_turntable=True)  # refuse unused settings before the servo moves
     journal = journal_path_for(output)
     if journal.exists() and not args.resume:
         print(f"plantsim: error: {journal} holds an unfinished scan; run the same command with --resume "
@@ -128,7 +104,6 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         return 2
     resume_hint = (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and run the "
                    "same command again with --resume")
-    source = UrgLidar() if args.lidar == "urg" else None
     try:
         turntable = ServoTurntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id,
                                            model=args.model, retries=args.retries)
@@ -138,8 +113,8 @@ def run_rig_scan(args: argparse.Namespace) -> int:
     progress, close_bar = _progress_bar("rig scan")
     try:
         with turntable:
-            result = rig_scan(config, turntable, resume=args.resume, source=source,
-                              settle_s=args.settle_s, progress=progress)
+            result = run_scan(config, turntable=turntable, resume=args.resume, settle_s=args.settle_s,
+                              progress=progress)
     except ScanInterruptedError as exc:
         close_bar()
         print(f"plantsim: error: {exc}", file=sys.stderr)
@@ -151,11 +126,8 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         return 130
     finally:
         close_bar()
-    path = write_rig_result(result, keep_journal=args.keep_journal)
-    cloud, raw = result.result.cloud, result.result.raw
-    resumed = f" ({result.lines_resumed} resumed from the journal)" if result.lines_resumed else ""
-    print(f"wrote {len(cloud):,} points ({cloud.counts_by_class()['plant']:,} on the plant) from "
-          f"{raw.n_lines} lines{resumed} x {raw.n_beams} beams to {path} in {time.perf_counter() - t0:.2f} s")
+    path = write_result(result, keep_journal=args.keep_journal)
+    print(summary_line(result, path, time.perf_counter() - t0))
     return 0
 
 

@@ -21,6 +21,7 @@ from plantsim.plant.mesh import PLACEMENTS, UNITS_TO_M
 from plantsim.rig.geometry import RigGeometry
 from plantsim.scan.schedule import StepScan
 from plantsim.sensor.spec import PRESETS, LidarSpec, lidar_preset
+from plantsim.sensor.casting import BACKENDS
 from plantsim.sensor.model import SensorModel
 
 if sys.version_info >= (3, 11):
@@ -70,10 +71,13 @@ class OutputOptions:
     Attributes:
       path: the point cloud; its extension picks the format (.las .ply .pcd .txt .xyz).
       plant_only: write only points on the plant.
+      raw: a folder to write the raw record to, as a ROS 2 bag (MCAP storage),
+        or None.
     """
 
     path: str = "scan.las"
     plant_only: bool = False
+    raw: str | None = None
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -98,15 +102,31 @@ class RunConfig:
     output: OutputOptions = OutputOptions()
     seed: int = 0
     ideal: bool = False
+    sensor: str = "realistic"
+    caster: str = "mujoco"
     threads: int | None = None
     turntable: TurntableOptions = TurntableOptions()
     sensor_model: SensorModel = SensorModel()
+    explicit: frozenset = frozenset()
 
     def __post_init__(self):
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
+        if self.threads is not None and (isinstance(self.threads, bool) or not isinstance(self.threads, int)
+                                         or self.threads < 1):
             raise ValueError(f"threads must be a positive integer, got {self.threads!r}")
+        if not isinstance(self.ideal, bool):
+            raise ValueError(f"ideal must be true or false, got {self.ideal!r}")
+        if self.sensor not in SENSORS:
+            raise ValueError(f"sensor must be one of {', '.join(SENSORS)}, got {self.sensor!r}")
+        if self.caster not in BACKENDS:
+            raise ValueError(f"caster must be one of {', '.join(BACKENDS)}, got {self.caster!r}")
+        if not isinstance(self.output.plant_only, bool):
+            raise ValueError(f"plant_only must be true or false, got {self.output.plant_only!r}")
+        object.__setattr__(self, "explicit", frozenset(self.explicit))
+
+    def replace(self, **changes) -> "RunConfig":
+        return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
         """The resolved configuration as plain JSON-able data."""
@@ -118,6 +138,8 @@ class RunConfig:
             "output": dataclasses.asdict(self.output),
             "seed": self.seed,
             "ideal": self.ideal,
+            "sensor": self.sensor,
+            "caster": self.caster,
             "threads": self.threads,
             "turntable": dataclasses.asdict(self.turntable),
             "sensor_model": dataclasses.asdict(self.sensor_model),
@@ -126,7 +148,20 @@ class RunConfig:
 
 _SECTIONS = {"plant": PlantOptions, "rig": RigGeometry, "scan": StepScan, "output": OutputOptions,
              "sensor_model": SensorModel}
-_TOP_LEVEL = ("seed", "ideal", "threads")
+_TOP_LEVEL = ("seed", "ideal", "sensor", "caster", "threads")
+SENSORS = ("ideal", "realistic")
+
+
+def given_keys(data: dict[str, Any], prefix: str = "") -> set[str]:
+    """Dotted paths of every value in nested plain data (``turntable.jitter.backlash_deg``)."""
+    keys = set()
+    for key, value in data.items():
+        path = f"{prefix}{key}"
+        if isinstance(value, dict):
+            keys |= given_keys(value, path + ".")
+        else:
+            keys.add(path)
+    return keys
 
 
 def _known(cls) -> list[str]:
@@ -153,6 +188,10 @@ def config_from_dict(data: dict[str, Any], *, base_dir: str | os.PathLike | None
     if unknown:
         raise ConfigError(f"unknown key(s) or section(s) {', '.join(unknown)}; valid: "
                           f"{', '.join(list(_SECTIONS) + ['lidar', 'turntable'] + list(_TOP_LEVEL))}")
+    for name in list(_SECTIONS) + ["lidar", "turntable"]:
+        if name in data and not isinstance(data[name], dict):
+            raise ConfigError(f"{name} must be a [{name}] section (a TOML table), got {data[name]!r}; "
+                              f"write it as [{name}] with its keys below")
     parts = {}
     for name, cls in _SECTIONS.items():
         values = dict(data.get(name, {}))
@@ -177,7 +216,8 @@ def config_from_dict(data: dict[str, Any], *, base_dir: str | os.PathLike | None
                           f"{', '.join(_known(LidarSpec))}")
     try:
         lidar = base.replace(**lidar_values) if lidar_values else base
-        return RunConfig(lidar=lidar, **parts, **{k: data[k] for k in _TOP_LEVEL if k in data})
+        return RunConfig(lidar=lidar, **parts, **{k: data[k] for k in _TOP_LEVEL if k in data},
+                         explicit=frozenset(given_keys(data)))
     except (TypeError, ValueError) as exc:
         raise ConfigError(str(exc)) from exc
 

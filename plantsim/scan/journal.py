@@ -36,10 +36,11 @@ from plantsim.errors import JournalError
 log = logging.getLogger(__name__)
 
 MAGIC = b"PSJ1"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _FRAME = struct.Struct("<4sII")  # magic, payload length, crc32 of the payload
-# Line record head: index, n_beams, commanded, reported and cast angle (rad), line start (s).
-_LINE = struct.Struct("<IIdddd")
+# Line record head: index, n_beams, commanded, reported and cast angle (rad), line stamp
+# (ns since the scan's start), whether intensities follow.
+_LINE = struct.Struct("<IIdddqB")
 _MAX_PAYLOAD = 1 << 28  # a sanity bound on a frame's length field (256 MiB)
 
 
@@ -59,22 +60,24 @@ class JournalLine:
       reported_angle_rad: the angle the turntable reported after the move, rad
         (the reconstruction uses this one).
       cast_angle_rad: where the simulated LiDAR cast its rays, rad (NaN for a real sensor).
-      time_s: the line's start, seconds since the scan's start.
+      stamp_ns: the line's first beam, nanoseconds since the scan's start.
       range_m: (n_beams,) float64, metres, NaN where there is no return.
       status: (n_beams,) uint8 :class:`~plantsim.sensor.BeamStatus`.
       hit_class: (n_beams,) uint8 :class:`~plantsim.scene.HitClass`.
       geom_id: (n_beams,) int32, MuJoCo geom id or -1.
+      intensity: (n_beams,) float32 or None.
     """
 
     index: int
     commanded_angle_rad: float
     reported_angle_rad: float
     cast_angle_rad: float
-    time_s: float
+    stamp_ns: int
     range_m: np.ndarray
     status: np.ndarray
     hit_class: np.ndarray
     geom_id: np.ndarray
+    intensity: np.ndarray | None = None
 
     def __post_init__(self):
         n = len(self.range_m)
@@ -84,26 +87,33 @@ class JournalLine:
 
     def to_bytes(self) -> bytes:
         head = _LINE.pack(self.index, len(self.range_m), self.commanded_angle_rad,
-                          self.reported_angle_rad, self.cast_angle_rad, self.time_s)
-        return b"".join((head, np.ascontiguousarray(self.range_m, dtype="<f8").tobytes(),
-                         np.ascontiguousarray(self.status, dtype=np.uint8).tobytes(),
-                         np.ascontiguousarray(self.hit_class, dtype=np.uint8).tobytes(),
-                         np.ascontiguousarray(self.geom_id, dtype="<i4").tobytes()))
+                          self.reported_angle_rad, self.cast_angle_rad, int(self.stamp_ns),
+                          self.intensity is not None)
+        parts = [head, np.ascontiguousarray(self.range_m, dtype="<f8").tobytes(),
+                 np.ascontiguousarray(self.status, dtype=np.uint8).tobytes(),
+                 np.ascontiguousarray(self.hit_class, dtype=np.uint8).tobytes(),
+                 np.ascontiguousarray(self.geom_id, dtype="<i4").tobytes()]
+        if self.intensity is not None:
+            parts.append(np.ascontiguousarray(self.intensity, dtype="<f4").tobytes())
+        return b"".join(parts)
 
     @classmethod
     def from_bytes(cls, payload: bytes) -> "JournalLine":
-        index, n, commanded, reported, cast, t0 = _LINE.unpack_from(payload)
-        if len(payload) != _LINE.size + n * (8 + 1 + 1 + 4):
+        index, n, commanded, reported, cast, stamp_ns, has_intensity = _LINE.unpack_from(payload)
+        expected = _LINE.size + n * (8 + 1 + 1 + 4 + (4 if has_intensity else 0))
+        if len(payload) != expected:
             raise JournalError(f"line record {index} has {len(payload)} bytes, expected "
-                               f"{_LINE.size + n * 14} for {n} beams")
+                               f"{expected} for {n} beams")
         offset = _LINE.size
         arrays = []
-        for dtype, size in (("<f8", 8), (np.uint8, 1), (np.uint8, 1), ("<i4", 4)):
+        fields = [("<f8", 8), (np.uint8, 1), (np.uint8, 1), ("<i4", 4)] + ([("<f4", 4)] if has_intensity else [])
+        for dtype, size in fields:
             arrays.append(np.frombuffer(payload, dtype=dtype, count=n, offset=offset).copy())
             offset += n * size
         return cls(index=index, commanded_angle_rad=commanded, reported_angle_rad=reported,
-                   cast_angle_rad=cast, time_s=t0, range_m=arrays[0].astype(np.float64),
-                   status=arrays[1], hit_class=arrays[2], geom_id=arrays[3].astype(np.int32))
+                   cast_angle_rad=cast, stamp_ns=stamp_ns, range_m=arrays[0].astype(np.float64),
+                   status=arrays[1], hit_class=arrays[2], geom_id=arrays[3].astype(np.int32),
+                   intensity=arrays[4].astype(np.float32) if has_intensity else None)
 
 
 def encode_frame(payload: bytes) -> bytes:

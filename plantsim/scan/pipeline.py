@@ -1,13 +1,25 @@
-"""One scan run, end to end: load, build, scan, reconstruct, encode, write.
+"""The scan pipeline: one function for every mode, every turntable and every sensor.
 
-The pieces are pure; this module strings them together, times each phase, and
-assembles the sidecar. Nothing is written until everything is computed.
+A scan is a schedule (:mod:`plantsim.scan.schedule`) x a turntable motion
+(kinematic or MuJoCo physics, :mod:`plantsim.turntable.motion`; or a real
+turntable driven line by line, :mod:`plantsim.scan.session`) x a line source
+(the simulated LiDAR, ideal or realistic: :mod:`plantsim.sensor.lidar`) -> one
+raw record (:class:`~plantsim.scan.raw.RawScan`, the content of the scan's ROS 2
+bag) -> the reconstruction from what a real rig knows (encoder readings, beam
+times, rig geometry: :mod:`plantsim.cloud.reconstruct`) -> the cloud.
+:func:`plan_scan` decides the parts once and refuses what they would not use.
+
+:func:`run_scan` writes nothing; :func:`write_result` writes the cloud, its
+sidecar (what was actually simulated, part by part) and, when asked, the raw
+record as a ROS 2 bag.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
+import os
 import platform
 import time
 from pathlib import Path
@@ -15,20 +27,24 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from plantsim.scan.config import RunConfig
-from plantsim.cloud.export import check_output_path, encode_cloud, sidecar_path, write_atomic
-from plantsim.plant.mesh import PlantMesh, load_plant
 from plantsim.cloud.reconstruct import PointCloud, reconstruct
+from plantsim.plant.mesh import PlantMesh, load_plant
 from plantsim.resources import bundled_plant_path
-from plantsim.scan.raw import RawScan
-from plantsim.sensor.casting import FootprintCaster, RayCaster, gate_ranges
 from plantsim.rig.scene import Scene, build_scene
+from plantsim.scan.config import RunConfig
+from plantsim.scan.plan import ScanPlan, plan_scan
+from plantsim.scan.raw import BeamGrid, RawScan, lidar_pose_of, ns_to_s
+from plantsim.sensor.casting import make_backend
 from plantsim.scan.schedule import StepScan
-from plantsim.sensor.model import SensorModel, apply_sensor
-from plantsim.sensor.spec import BeamStatus, LidarSpec
+from plantsim.sensor.lidar import SimulatedLidar
+from plantsim.sensor.model import SensorModel
+from plantsim.sensor.spec import LidarSpec
+from plantsim.turntable.encoder import EncoderConfig
+from plantsim.turntable import motion as motions
 
 if TYPE_CHECKING:  # the evaluation pulls in scipy: imported only when asked for
     from plantsim.evaluation.evaluate import Evaluation, EvaluationOptions
+    from plantsim.turntable.table import Turntable
 
 log = logging.getLogger(__name__)
 
@@ -37,15 +53,34 @@ Progress = Callable[[int, int], None]
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ScanResult:
-    """What a run produced (before or after writing)."""
+    """What a scan produced (before or after writing).
+
+    Attributes:
+      config: the configuration.
+      plan: the parts that ran.
+      plant, scene: the placed plant and the compiled scene.
+      raw: the raw record.
+      cloud: the reconstructed cloud (plant points only if configured).
+      timings_s: wall time of each phase.
+      parts: what each part simulated, for the sidecar.
+      diagnostics: what the turntable did (dynamic and rig scans).
+      evaluation: the scan against its truth, when asked (:func:`with_evaluation`).
+      journal_path: the journal of a line-by-line (rig) scan, else None.
+      lines_resumed: lines that came from an earlier, interrupted run.
+    """
 
     config: RunConfig
+    plan: ScanPlan
     plant: PlantMesh
     scene: Scene
     raw: RawScan
     cloud: PointCloud
     timings_s: dict
+    parts: dict
+    diagnostics: dict = dataclasses.field(default_factory=dict)
     evaluation: "Evaluation | None" = None
+    journal_path: Path | None = None
+    lines_resumed: int = 0
 
 
 def library_versions() -> dict:
@@ -55,7 +90,7 @@ def library_versions() -> dict:
     from plantsim import __version__
 
     versions = {"plantsim": __version__, "python": platform.python_version()}
-    for name in ("mujoco", "numpy", "scipy", "trimesh", "laspy"):
+    for name in ("mujoco", "numpy", "scipy", "trimesh", "laspy", "rosbags"):
         try:
             versions[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
@@ -71,76 +106,225 @@ def load_configured_plant(config: RunConfig) -> PlantMesh:
                       T_turntable_mesh=T)
 
 
-def run_scan(config: RunConfig, *, progress: Progress | None = None) -> ScanResult:
+def journal_path_for(output: str | os.PathLike) -> Path:
+    """The journal beside an output: ``scan.las`` -> ``scan.las.journal``."""
+    output = Path(output)
+    return output.with_name(output.name + ".journal")
+
+
+def _timing(config: RunConfig, grid: BeamGrid) -> motions.LineTiming:  # noqa: D103
+    return motions.LineTiming(scan_period_s=config.lidar.scan_period_s,
+                              first_beam_s=float(config.lidar.beam_time_offsets_s()[0]),
+                              beam_offsets_s=grid.beam_offsets_s())
+
+
+def _motion(config: RunConfig, plan: ScanPlan, dscene, grid: BeamGrid,
+            rng: np.random.Generator) -> motions.MotionRecord:
+    timing = _timing(config, grid)
+    tt = config.turntable
+    if plan.motion == "kinematic" and plan.mode == "step":
+        if config.scan.step_time_s < config.lidar.scan_period_s:
+            raise ValueError(
+                f"step_time_s ({config.scan.step_time_s} s) must be at least the sensor's scan period "
+                f"({config.lidar.scan_period_s} s): one line must fit in one step")
+        return motions.kinematic_step(config.scan.angles_rad(), config.scan.step_time_s, timing,
+                                      plan.encoder, rng)
+    if plan.motion == "kinematic":
+        return motions.kinematic_continuous(tt.rpm, config.scan.sweep_deg, timing, plan.encoder, rng)
+    if plan.mode == "step":
+        return motions.physics_step(dscene, config.scan.angles_rad(), timing, plan.encoder, rng)
+    return motions.physics_continuous(dscene, tt.rpm, config.scan.sweep_deg, timing, plan.encoder, rng)
+
+
+def _describe_turntable(config: RunConfig, plan: ScanPlan, turntable=None) -> dict:
+    if plan.motion == "hardware":
+        return {"motion": "hardware", **turntable.describe(),
+                "angle_mode": plan.angle_mode, "encoder": "the table's own (its reported angle)"}
+    out = {"motion": plan.motion, "mode": plan.mode, "angle_mode": plan.angle_mode,
+           "encoder": dataclasses.asdict(plan.encoder)}
+    if plan.mode == "continuous":
+        out["rpm"] = config.turntable.rpm
+    if plan.motion == "kinematic":
+        out["model"] = ("a perfect motor: exactly at each commanded angle for the whole line"
+                        if plan.mode == "step" else "a perfect motor at constant speed")
+    else:
+        out["model"] = "the servo in MuJoCo (PID, torque limit, friction, profile)"
+        out["dynamics"] = dataclasses.asdict(plan.dynamics)
+        out["jitter_active"] = bool(plan.dynamics.jitter.any)
+    return out
+
+
+def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "Turntable | None" = None,
+             resume: bool = False, settle_s: float = 0.0, progress: Progress | None = None) -> ScanResult:
     """Runs the scan a configuration describes (no file is written).
 
     Args:
       config: the resolved configuration.
-      progress: called with (lines done, lines total) while casting.
+      plant: a placed plant (:func:`plantsim.plant.mesh.plant_from_arrays`) instead of the
+        one ``config.plant`` names.
+      turntable: a table driven line by line (a Dynamixel servo, its emulator, or
+        :class:`~plantsim.turntable.table.SimulatedTurntable`); None simulates the
+        turntable as ``config.turntable`` says. The caller closes it.
+      resume: (with ``turntable``) continue the journal beside the output.
+      settle_s: (with ``turntable``) wait after each move, s.
+      progress: called with (lines done, lines total).
+
+    Raises:
+      ConfigError: a setting the chosen parts would not use (see :func:`plan_scan`).
+      SimulationError: the turntable physics cannot run or diverged.
+      ScanInterruptedError, JournalError: see :func:`plantsim.scan.session.run_session`.
     """
+    plan = plan_scan(config, hardware_turntable=turntable is not None)
+    for note in plan.notes:
+        log.warning("%s", note)
     timings = {}
     t = time.perf_counter()
-    plant = load_configured_plant(config)
+    if plant is None:
+        plant = load_configured_plant(config)
     timings["load_mesh"] = time.perf_counter() - t
 
-    # The run's single source of randomness (used by the sensor and motor models).
-    rng = np.random.default_rng(config.seed)
-    if config.turntable.uses_physics(config.ideal):
-        if not config.ideal:
-            log.warning("dynamic scans cast one geometric ray per beam at its own instant; the "
-                        "sensor model (footprint, noise, intensity, dropouts) is not applied yet")
-        scene, raw = _dynamic_scan(config, plant, rng, timings, progress)
+    t = time.perf_counter()
+    dscene = None
+    if plan.motion == "physics":
+        from plantsim.turntable.dynamics import build_dynamic_scene
+
+        dscene = build_dynamic_scene(config.rig, plant, plan.dynamics,
+                                     plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
+        scene = dscene.scene
     else:
-        t = time.perf_counter()
         scene = build_scene(config.rig, plant, plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
-        timings["build_scene"] = time.perf_counter() - t
+    grid = BeamGrid.of(config.lidar)
+    source = SimulatedLidar(scene, config.lidar, grid.beam_angles_rad(),
+                            model=None if plan.sensor == "ideal" else config.sensor_model,
+                            backend=make_backend(scene, config.caster, nthread=config.threads),
+                            nthread=config.threads)
+    timings["build_scene"] = time.perf_counter() - t
 
+    t = time.perf_counter()
+    journal_path, lines_resumed, diagnostics = None, 0, {}
+    if turntable is None:
+        rng = np.random.default_rng(config.seed)
+        record = _motion(config, plan, dscene, grid, rng)
+        timings["turntable"] = time.perf_counter() - t
         t = time.perf_counter()
-        if config.ideal:
-            caster = RayCaster(scene, config.lidar, nthread=config.threads)
-            raw = step_and_shoot(scene, config.lidar, config.scan, caster=caster, progress=progress)
-        else:
-            caster = FootprintCaster(scene, config.lidar, config.sensor_model, nthread=config.threads)
-            raw = realistic_step_and_shoot(scene, config.lidar, config.scan, config.sensor_model,
-                                           rng=rng, caster=caster, progress=progress)
-        timings["scan"] = time.perf_counter() - t
+        raw = simulate_lines(source, record, grid, plan.angle_mode, rng, progress=progress)
+        diagnostics = motions.physics_diagnostics(record, raw.time_s, raw.true_turntable_angle_rad,
+                                                  raw.turntable_angle_rad)
+    else:
+        from plantsim.cloud.export import check_output_path
+        from plantsim.scan.session import run_session
 
-    return finish_scan(config, plant, scene, raw, timings)
+        output = check_output_path(config.output.path)  # fail before any move
+        journal_path = journal_path_for(output)
+        raw, journal = run_session(turntable=turntable, source=source, grid=grid, schedule=config.scan,
+                                   seed=config.seed, journal_path=journal_path,
+                                   first_beam_s=float(config.lidar.beam_time_offsets_s()[0]),
+                                   identity=scan_identity(config, plant, turntable, source),
+                                   angle_mode=plan.angle_mode, resume=resume, settle_s=settle_s,
+                                   progress=progress)
+        lines_resumed = journal.lines_resumed
+        error = raw.encoder_angle_rad - raw.commanded_rad
+        diagnostics = {"max_reported_minus_commanded_rad": float(np.abs(error).max()) if len(error) else 0.0,
+                       "note": "reported minus commanded, per line; points use the reported angle"}
+    timings["scan"] = time.perf_counter() - t
+
+    parts = {"plan": plan.to_dict(), "schedule": _describe_schedule(config, plan, raw),
+             "turntable": _describe_turntable(config, plan, turntable), "lidar": source.describe()}
+    return finish_scan(config, plan, plant, scene, raw, timings, parts=parts, diagnostics=diagnostics,
+                       journal_path=journal_path, lines_resumed=lines_resumed)
 
 
-def finish_scan(config: RunConfig, plant: PlantMesh, scene: Scene, raw: RawScan,
-                timings: dict) -> ScanResult:
+def simulate_lines(source: SimulatedLidar, record: motions.MotionRecord, grid: BeamGrid, angle_mode: str,
+                   rng: np.random.Generator, *, progress: Progress | None = None) -> RawScan:
+    """The simulated LiDAR takes every line of a simulated motion, each beam at its own true angle.
+
+    Returns:
+      The raw record (ground truth included).
+    """
+    beam_time_s = ns_to_s(record.line_stamp_ns)[:, None] + grid.beam_offsets_s()[None, :]
+    true_rad = record.true_angles(beam_time_s)
+    lines = source.cast_lines(true_rad, rng, progress=progress)
+    shape = lines.range_m.shape
+    return RawScan(grid=grid, line_stamp_ns=record.line_stamp_ns, range_m=lines.range_m,
+                   status=lines.status, intensity=lines.intensity,
+                   encoder_stamp_ns=np.round(record.readings.time_s * 1e9).astype(np.int64),
+                   encoder_angle_rad=record.readings.angle_rad, commanded_rad=record.commanded_rad,
+                   angle_mode=angle_mode, lidar_pose=lidar_pose_of(source.scene.T_base_lidar),
+                   true_turntable_angle_rad=np.broadcast_to(
+                       true_rad if true_rad.ndim == 2 else true_rad[:, None], shape).copy(),
+                   hit_class=lines.hit_class, geom_id=lines.geom_id)
+
+
+def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, model: SensorModel | None = None,
+                   rng: np.random.Generator | None = None, progress: Progress | None = None) -> RawScan:
+    """A step-and-shoot scan of a scene you built: a perfect turntable, the ideal or realistic sensor.
+
+    The same parts as :func:`run_scan` with ``physics = "kinematic"`` (the table
+    exactly at each commanded angle, an exact encoder), for scenes made by hand
+    (:func:`plantsim.rig.scene.build_scene`, or an MjSpec of analytic shapes).
+
+    Args:
+      scene: a compiled scene.
+      lidar: the sensor.
+      schedule: angles and timing.
+      model: the sensor model, or None for the ideal sensor.
+      rng: the generator of the sensor model's noise (default: seed 0).
+      progress: called with (lines done, lines total).
+    """
+    if schedule.step_time_s < lidar.scan_period_s:
+        raise ValueError(
+            f"step_time_s ({schedule.step_time_s} s) must be at least the sensor's scan period "
+            f"({lidar.scan_period_s} s): one line must fit in one step")
+    rng = np.random.default_rng(0) if rng is None else rng
+    grid = BeamGrid.of(lidar)
+    source = SimulatedLidar(scene, lidar, grid.beam_angles_rad(), model=model)
+    timing = motions.LineTiming(scan_period_s=lidar.scan_period_s,
+                                first_beam_s=float(lidar.beam_time_offsets_s()[0]),
+                                beam_offsets_s=grid.beam_offsets_s())
+    record = motions.kinematic_step(schedule.angles_rad(), schedule.step_time_s, timing, EncoderConfig.ideal(),
+                                    rng)
+    return simulate_lines(source, record, grid, "interpolate", rng, progress=progress)
+
+
+def _describe_schedule(config: RunConfig, plan: ScanPlan, raw: RawScan) -> dict:
+    out = {"mode": plan.mode, "lines": raw.n_lines, "beams_per_line": raw.n_beams,
+           "sweep_deg": config.scan.sweep_deg}
+    if plan.mode == "step":
+        out["step_deg"] = config.scan.step_deg
+        if plan.motion == "kinematic":
+            out["step_time_s"] = config.scan.step_time_s
+    return out
+
+
+def finish_scan(config: RunConfig, plan: ScanPlan, plant: PlantMesh, scene: Scene, raw: RawScan,
+                timings: dict, **extra) -> ScanResult:
     """Reconstructs a raw scan (plant points only if configured) into a :class:`ScanResult`."""
     t = time.perf_counter()
     cloud = reconstruct(raw)
     if config.output.plant_only:
         cloud = cloud.plant_only()
     timings["reconstruct"] = time.perf_counter() - t
-    return ScanResult(config=config, plant=plant, scene=scene, raw=raw, cloud=cloud, timings_s=timings)
+    return ScanResult(config=config, plan=plan, plant=plant, scene=scene, raw=raw, cloud=cloud,
+                      timings_s=timings, **extra)
 
 
-def _dynamic_scan(config: RunConfig, plant: PlantMesh, rng: np.random.Generator, timings: dict,
-                  progress: Progress | None) -> tuple[Scene, RawScan]:
-    """The scan with the servo's physics (issue 4): step or continuous mode."""
-    from plantsim.sensor.casting import PoseCaster
-    from plantsim.turntable.motion import continuous_scan, dynamic_step_and_shoot
-    from plantsim.turntable.dynamics import build_dynamic_scene
+def scan_identity(config: RunConfig, plant: PlantMesh, turntable, source) -> dict:
+    """What determines a journaled scan's lines: a journal resumes only under the same identity.
 
-    options = config.turntable.effective(config.ideal)
-    t = time.perf_counter()
-    dscene = build_dynamic_scene(config.rig, plant, options.dynamics,
-                                 plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
-    timings["build_scene"] = time.perf_counter() - t
-    t = time.perf_counter()
-    caster = PoseCaster(dscene.scene, config.lidar, nthread=config.threads)
-    if options.mode == "continuous":
-        result = continuous_scan(dscene, config.lidar, config.scan.sweep_deg, options, rng,
-                                 caster=caster, progress=progress)
-    else:
-        result = dynamic_step_and_shoot(dscene, config.lidar, config.scan, options, rng,
-                                        caster=caster, progress=progress)
-    timings["scan"] = time.perf_counter() - t
-    return dscene.scene, result.raw
+    Every section of the resolved configuration counts (so a section added later
+    counts too) except the output options and the thread count; the port is not
+    part of it either. The plant is identified by its placed geometry (a hash), not
+    its file path, so a relative path from another directory still resumes.
+    """
+    digest = hashlib.sha256()
+    for array in (plant.vertices_mesh, plant.faces, plant.T_turntable_mesh):
+        digest.update(array.tobytes())
+    identity = {k: v for k, v in config.to_dict().items() if k not in ("output", "threads", "caster")}
+    identity["plant"] = {k: v for k, v in identity["plant"].items() if k != "mesh"}
+    identity["plant_geometry_sha256"] = digest.hexdigest()
+    identity["rig_turntable"] = turntable.identity()
+    identity["line_source"] = {"kind": source.kind, "sensor": "ideal" if source.ideal else "realistic"}
+    return identity
 
 
 def with_evaluation(result: ScanResult, *, options: "EvaluationOptions | None" = None) -> ScanResult:
@@ -148,14 +332,6 @@ def with_evaluation(result: ScanResult, *, options: "EvaluationOptions | None" =
     when an exact-traits file sits beside the mesh, traits against it.
 
     The evaluation's wall time is added to ``timings_s`` as ``evaluate``.
-
-    Args:
-      result: a scan.
-      options: how to measure (None: the defaults of
-        :class:`plantsim.evaluate.EvaluationOptions`).
-
-    Returns:
-      A new ScanResult carrying ``evaluation``.
     """
     from plantsim.evaluation.evaluate import EvaluationOptions, evaluate_scan
 
@@ -165,27 +341,29 @@ def with_evaluation(result: ScanResult, *, options: "EvaluationOptions | None" =
 
 
 def simulated_rig_time_s(result: ScanResult) -> float:
-    """How long the simulated rig took, seconds: the last scan line's time stamp
-    plus one scan period (the time a real acquisition would last, not the
-    simulator's wall time)."""
-    lidar = result.config.lidar
-    last_line_t0 = float(result.raw.time_s[-1, 0] - lidar.beam_time_offsets_s()[0])
-    return last_line_t0 + lidar.scan_period_s
+    """How long the simulated rig took, seconds: the last line's first beam plus
+    one scan period (what a real acquisition would last, not the simulator's time)."""
+    raw = result.raw
+    if raw.n_lines == 0:
+        return 0.0
+    first_beam = float(result.config.lidar.beam_time_offsets_s()[0])
+    return float(raw.line_time_s[-1]) - first_beam + result.config.lidar.scan_period_s
 
 
 def sidecar(result: ScanResult) -> dict:
-    """The sidecar JSON's content for a result."""
+    """The sidecar JSON's content: the configuration and what was actually simulated."""
     out = {
-        "plantsim_sidecar": 1,
+        "plantsim_sidecar": 2,
         "output": result.config.output.path,
         "config": result.config.to_dict(),
         "seed": result.config.seed,
+        "simulated": result.parts,
         "versions": library_versions(),
         "frames": {
             "turntable": "origin on the turntable axis at the disk top, +Z up along the axis, "
                          "+X towards the LiDAR at turntable angle 0; metres",
             "T_turntable_mesh": result.plant.T_turntable_mesh.tolist(),
-            "T_base_lidar": result.scene.T_base_lidar.tolist(),
+            "T_base_lidar": result.raw.T_base_lidar.tolist(),
         },
         "plant": result.plant.summary(),
         "counts": {**result.raw.counts(), "points_written": len(result.cloud),
@@ -194,118 +372,43 @@ def sidecar(result: ScanResult) -> dict:
         "timings_s": result.timings_s,
         "simulated_rig_time_s": simulated_rig_time_s(result),
     }
+    if result.diagnostics:
+        out["turntable_diagnostics"] = result.diagnostics
+    if result.journal_path is not None:
+        out["journal"] = {"path": str(result.journal_path), "lines_resumed": result.lines_resumed}
+    if result.config.output.raw:
+        out["raw"] = {"path": result.config.output.raw, "format": "ROS 2 bag (MCAP storage)"}
     if result.evaluation is not None:
         out["evaluation"] = result.evaluation.to_dict()
     return out
 
 
-def write_result(result: ScanResult, path: str | Path | None = None) -> Path:
-    """Encodes and writes the cloud and its sidecar, atomically."""
-    path = check_output_path(path or result.config.output.path)
-    t = time.perf_counter()
-    data = encode_cloud(path, result.cloud)
-    result.timings_s["encode"] = time.perf_counter() - t
-    import json
+def write_result(result: ScanResult, path: str | Path | None = None, *, keep_journal: bool = False) -> Path:
+    """Writes the cloud, its sidecar and (when configured) the raw record as a ROS 2 bag.
 
-    text = json.dumps(sidecar(result), indent=2) + "\n"
-    write_atomic(path, data)
-    write_atomic(sidecar_path(path), text.encode("utf-8"))
+    The bag is written first, then the cloud and the sidecar, each atomically; a
+    journal (rig scans) is removed only once all are written, unless ``keep_journal``.
+    """
+    from plantsim.cloud.export import check_output_path, write_cloud
+
+    path = check_output_path(path or result.config.output.path)
+    if result.config.output.raw:
+        from plantsim.cloud.bag import write_raw
+
+        t = time.perf_counter()
+        write_raw(result.config.output.raw, result.raw, metadata=bag_metadata(result))
+        result.timings_s["write_raw"] = time.perf_counter() - t
+    data = sidecar(result)
+    if result.journal_path is not None:
+        data["journal"]["kept"] = keep_journal
+    write_cloud(path, result.cloud, sidecar=data)
+    if result.journal_path is not None and not keep_journal:
+        result.journal_path.unlink(missing_ok=True)
     return path
 
 
-def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *,
-                   caster: RayCaster | None = None, progress: Progress | None = None) -> RawScan:
-    """An ideal, kinematic step-and-shoot scan (no actuator, no physics).
+def bag_metadata(result: ScanResult) -> dict:
+    """What the bag's ``/plantsim/scan_info`` carries besides the raw record itself."""
+    return {"config": result.config.to_dict(), "simulated": result.parts, "T_turntable_mesh": result.plant.T_turntable_mesh.tolist(),
+            "plant": result.plant.summary(), "versions": library_versions()}
 
-    The table is exactly at each commanded angle for the whole line.
-
-    Args:
-      scene: a compiled scene from :func:`plantsim.scene.build_scene`.
-      lidar: the sensor.
-      schedule: angles and timing.
-      caster: a :class:`RayCaster` to reuse (it must be for this scene and sensor).
-      progress: called with (lines done, lines total).
-
-    Returns:
-      The :class:`RawScan`.
-    """
-    if schedule.step_time_s < lidar.scan_period_s:
-        raise ValueError(
-            f"step_time_s ({schedule.step_time_s} s) must be at least the sensor's scan period "
-            f"({lidar.scan_period_s} s): one line must fit in one step")
-    caster = caster or RayCaster(scene, lidar)
-    dist, geom = caster.cast(schedule.angles_rad(), progress=progress)
-    range_m, status = gate_ranges(dist, lidar)
-    return kinematic_raw_scan(scene, lidar, schedule, range_m=range_m, status=status, geom_id=geom)
-
-
-def kinematic_raw_scan(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, range_m: np.ndarray,
-                       status: np.ndarray, geom_id: np.ndarray,
-                       intensity: np.ndarray | None = None) -> RawScan:
-    """The raw record of a kinematic step-and-shoot scan from its per-beam results.
-
-    The table is exactly at each commanded angle for the whole line; line j
-    starts at ``j * step_time_s`` and its beams follow the sensor's timing.
-
-    Args:
-      range_m, status, geom_id: (n_lines, n_beams) per-beam results.
-      intensity: optional (n_lines, n_beams) float.
-    """
-    angles = schedule.angles_rad()
-    line_t0 = schedule.step_time_s * np.arange(schedule.n_lines)
-    time_s = line_t0[:, None] + lidar.beam_time_offsets_s()[None, :]
-    angle_per_beam = np.broadcast_to(angles[:, None], range_m.shape)
-    return RawScan(
-        turntable_angle_rad=angle_per_beam,
-        true_turntable_angle_rad=angle_per_beam,
-        beam_angle_rad=lidar.beam_angles_rad(),
-        range_m=range_m,
-        status=status,
-        hit_class=scene.geom_class[geom_id],
-        geom_id=geom_id,
-        time_s=time_s,
-        T_base_lidar=scene.T_base_lidar,
-        intensity=intensity,
-    )
-
-
-def realistic_step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan,
-                             model: SensorModel, *, rng: np.random.Generator,
-                             caster: FootprintCaster | None = None,
-                             progress: Progress | None = None) -> RawScan:
-    """A kinematic step-and-shoot scan through the sensor model.
-
-    Like :func:`plantsim.scan.step_and_shoot` (the table is exactly at each
-    commanded angle for the whole line), but each beam is a sampled footprint
-    and its return goes through :func:`apply_sensor`.
-
-    Args:
-      scene: a compiled scene.
-      lidar: the sensor and its noise parameters.
-      schedule: angles and timing.
-      model: which effects, and the reflectances.
-      rng: the run's one generator.
-      caster: a :class:`FootprintCaster` to reuse (for this scene, sensor and model).
-      progress: called with (lines done, lines total).
-
-    Returns:
-      The :class:`RawScan`, with ``intensity`` when the model records it.
-    """
-    if schedule.step_time_s < lidar.scan_period_s:
-        raise ValueError(
-            f"step_time_s ({schedule.step_time_s} s) must be at least the sensor's scan period "
-            f"({lidar.scan_period_s} s): one line must fit in one step")
-    caster = caster or FootprintCaster(scene, lidar, model)
-    angles = schedule.angles_rad()
-    fp = caster.cast(angles, progress=progress)
-    log.debug("footprint: %d of %d beams refined with %d sub-rays", caster.n_refined,
-              fp["geom_id"].size, caster.pattern.n_subrays)
-    range_m, status, intensity = apply_sensor(fp["range_m"], fp["power"], fp["cos_incidence"],
-                                              fp["spread_m"], lidar, model, rng)
-    too_near = int((status == BeamStatus.TOO_NEAR).sum())
-    if too_near > (status == BeamStatus.OK).sum():
-        log.warning("%d beams returned nearer than %s's range_min_m (%g m), more than gave a "
-                    "range: move the sensor back ([rig] lidar_distance_m = %g m now)", too_near,
-                    lidar.name, lidar.range_min_m, scene.rig.lidar_distance_m)
-    return kinematic_raw_scan(scene, lidar, schedule, range_m=range_m, status=status,
-                              geom_id=fp["geom_id"], intensity=intensity)

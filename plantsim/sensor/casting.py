@@ -1,26 +1,37 @@
-"""Ray casting for the simulated LiDAR: MuJoCo's ``mujoco.batch`` on the scan scene."""
+"""Ray casting for the simulated LiDAR: one interface for every scan.
+
+Only the turntable's body and what it carries (the disk, the plant) turn. So a
+ray cast at turntable angle theta is the same ray turned by ``Rz(-theta)`` into
+the turntable frame and cast against the turning geoms with the hinge at 0;
+everything else (bench, servo housing, post, any static world geom) never
+moves, so each ray of the sensor is cast against it once, up front. The nearer of the two hits is the beam's first hit.
+This one rule serves a step scan (one angle per line), a continuous scan (one
+angle per beam) and every footprint sub-ray alike.
+
+A :class:`Caster` holds the sensor's rays (the "ray table", base frame, fixed by
+the rig geometry and the sensor) and casts any selection of them at any
+turntable angles. The casting itself is a backend: :class:`MujocoBackend`
+(``mujoco.batch``, the reference) or, when installed, Embree
+(:mod:`plantsim.sensor.embree`).
+"""
 
 from __future__ import annotations
 
+import copy
 import logging
 import os
-from typing import Callable
+from typing import Callable, NamedTuple, Protocol
 
 import mujoco
 import mujoco.batch
 import numpy as np
 
-from plantsim.rig.geometry import beam_dirs_lidar
-from plantsim.rig.scene import LIDAR_GEOMGROUP, Scene
-from plantsim.sensor.footprint import SubrayPattern, coplanar_probes, combine_footprint, subray_pattern, subrays_lidar
-from plantsim.sensor.model import SensorModel
+from plantsim.rig.scene import Scene
 from plantsim.sensor.spec import BeamStatus, LidarSpec
-from plantsim.transforms import rot_z_batch
 
 log = logging.getLogger(__name__)
 
 Progress = Callable[[int, int], None]
-
 
 # MuJoCo's mesh BVH can cull a ray that lies exactly in a plane holding mesh
 # vertices (../shared/notes/mujoco-raycasting.md): a scan plane through the
@@ -30,24 +41,32 @@ Progress = Callable[[int, int], None]
 AXIS_TRAP_OFFSET_M = 1e-9
 
 
-def ray_origins_dirs_base(T_base_lidar: np.ndarray, beam_angles_rad: np.ndarray
-                          ) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame rays of one scan line, with the axis-trap guard applied.
+def _groups(*groups: int) -> np.ndarray:
+    return np.array([1 if g in groups else 0 for g in range(mujoco.mjNGROUP)], dtype=np.uint8)
 
-    Returns:
-      origin_base (3,) float64 metres, dirs_base (n_beams, 3) float64 unit vectors.
-    """
-    R = T_base_lidar[:3, :3]
-    dirs_base = beam_dirs_lidar(beam_angles_rad) @ R.T
-    origin_base = T_base_lidar[:3, 3] + AXIS_TRAP_OFFSET_M * R[:, 2]
-    return origin_base, dirs_base
+
+CAST_GEOMGROUP = _groups(0, 1, 2)  # rig, turntable, plant; group 3 (the sensor's housing) is never cast
+_HIDDEN_GROUP = 5  # where a backend's private model copy parks the geoms one cast must not see
+
+
+def turning_geoms(scene: Scene) -> np.ndarray:
+    """(ngeom,) bool: the geoms that turn with the table (on the turntable body or its descendants)."""
+    model = scene.model
+    table = model.body("turntable").id
+    turning_body = np.zeros(model.nbody, dtype=bool)
+    for body in range(model.nbody):
+        b = body
+        while b > 0 and b != table:
+            b = model.body_parentid[b]
+        turning_body[body] = b == table
+    return turning_body[model.geom_bodyid]
 
 
 def gate_ranges(dist_m: np.ndarray, lidar: LidarSpec) -> tuple[np.ndarray, np.ndarray]:
     """Applies the sensor's range limits to first-hit distances.
 
     Args:
-      dist_m: (...) float64 metres, MuJoCo's first-hit distance, -1 for a miss.
+      dist_m: (...) float64 metres, first-hit distance, -1 for a miss.
       lidar: the sensor.
 
     Returns:
@@ -60,276 +79,194 @@ def gate_ranges(dist_m: np.ndarray, lidar: LidarSpec) -> tuple[np.ndarray, np.nd
     return range_m, status
 
 
-class RayCaster:
-    """Casts LiDAR lines at given turntable angles with ``mujoco.batch``.
+class Hits(NamedTuple):
+    """First hits of rays.
 
-    One simulation per scan line: its hinge angle is that line's, and all lines
-    share the same world-frame rays. The batch releases the GIL and runs on
-    ``nthread`` threads.
+    dist_m (...) float64 (-1: miss); geom_id (...) int32 (-1: miss); normal_base
+    (..., 3) float64 unit surface normals in the base frame (zero for a miss), or None.
     """
 
-    def __init__(self, scene: Scene, lidar: LidarSpec, *, nthread: int | None = None,
-                 max_lines: int = 4096):
-        self.scene = scene
-        self.lidar = lidar
-        self.beam_angles_rad = lidar.beam_angles_rad()
-        self.origin_base, self.dirs_base = ray_origins_dirs_base(scene.T_base_lidar,
-                                                                  self.beam_angles_rad)
-        self.nthread = nthread or max(1, os.cpu_count() or 1)
-        self._max_lines = max_lines
-        self._batch = None
-        self._nsim = 0
-
-    def _ensure_batch(self, n: int):
-        if self._batch is None or self._nsim < n:
-            self._nsim = max(n, 1)
-            self._batch = mujoco.batch.Batch(self.scene.model, nsim=self._nsim, nthread=self.nthread)
-        return self._batch
-
-    def cast(self, qpos_turntable_rad: np.ndarray, *, progress: Progress | None = None,
-             chunk_lines: int = 64) -> tuple[np.ndarray, np.ndarray]:
-        """First-hit distance and geom per beam, one line per turntable angle.
-
-        Args:
-          qpos_turntable_rad: (n_lines,) float64, the true hinge angle per line.
-          progress: called with (lines done, lines total) after each chunk.
-          chunk_lines: lines per batch call (progress granularity).
-
-        Returns:
-          dist_m (n_lines, n_beams) float64 (-1: miss), geom_id (n_lines, n_beams) int32.
-        """
-        q = np.asarray(qpos_turntable_rad, dtype=np.float64).reshape(-1)
-        n = len(q)
-        dist = np.empty((n, len(self.dirs_base)))
-        geom = np.empty((n, len(self.dirs_base)), dtype=np.int32)
-        adr = self.scene.turntable_qpos_adr
-        for start in range(0, n, self._max_lines):
-            block = q[start:start + self._max_lines]
-            batch = self._ensure_batch(len(block))
-            qpos = batch.bind("qpos")
-            qpos[: len(block), adr] = block
-            for lo in range(0, len(block), chunk_lines):
-                ids = np.arange(lo, min(lo + chunk_lines, len(block)))
-                d, g = batch.ray(self.origin_base, self.dirs_base, geomgroup=LIDAR_GEOMGROUP,
-                                 flg_static=True, bodyexclude=self.scene.lidar_body_id, ids=ids)
-                dist[start + ids] = d
-                geom[start + ids] = g
-                if progress is not None:
-                    progress(start + ids[-1] + 1, n)
-        return dist, geom
+    dist_m: np.ndarray
+    geom_id: np.ndarray
+    normal_base: np.ndarray | None
 
 
-class FootprintCaster:
-    """Casts every beam's footprint with ``mujoco.batch``, one simulation per line.
+class Backend(Protocol):
+    """What a ray-casting backend does (MuJoCo's is the reference)."""
 
-    Per line and chunk of lines: first the probe sub-rays of every beam (one
-    batch call of n_beams x n_probe rays, with normals), then, for the beams
-    whose probes do not land on one flat surface, the remaining sub-rays (one
-    batch call, padded to the line with most such beams). With
-    ``adaptive=False`` every sub-ray of every beam is cast.
+    name: str
+
+    def cast_turning(self, origins: np.ndarray, dirs: np.ndarray, *, normals: bool = False) -> Hits:
+        """Casts (N, 3) rays, turntable frame, against the turning geoms with the hinge at 0."""
+
+    def cast_fixed(self, origins: np.ndarray, dirs: np.ndarray, *, normals: bool = False) -> Hits:
+        """Casts (N, 3) rays, base frame, against the fixed rig."""
+
+
+class MujocoBackend:
+    """``mujoco.batch`` on copies of the scene with the hinge at 0; releases the GIL.
+
+    The rays of a call are spread over ``nsim`` simulations so that the batch's
+    ``nthread`` threads share them.
     """
 
-    def __init__(self, scene: Scene, lidar: LidarSpec, model: SensorModel, *,
-                 nthread: int | None = None, max_lines: int = 4096):
+    name = "mujoco"
+
+    def __init__(self, scene: Scene, *, nthread: int | None = None, rays_per_sim: int = 8192):
         self.scene = scene
-        self.lidar = lidar
-        self.model = model
-        self.pattern: SubrayPattern = subray_pattern(model.footprint_rings)
-        self.beam_angles_rad = lidar.beam_angles_rad()
-        origins_lidar, dirs_lidar = subrays_lidar(
-            self.beam_angles_rad, self.pattern, divergence_rad=lidar.beam_divergence_rad,
-            exit_diameter_m=lidar.beam_exit_diameter_m)
-        T = scene.T_base_lidar
-        R = T[:3, :3]
-        self.origins_base = origins_lidar @ R.T + T[:3, 3] + AXIS_TRAP_OFFSET_M * R[:, 2]
-        self.dirs_base = dirs_lidar @ R.T
-        # The axis rays exactly as the ideal scanner casts them.
-        axis_origin, axis_dirs = ray_origins_dirs_base(T, self.beam_angles_rad)
-        self.origins_base[:, 0] = axis_origin
-        self.dirs_base[:, 0] = axis_dirs
-        self.adaptive = model.adaptive_footprint and self.pattern.n_subrays > 1
-        self.reflectance = model.reflectance_by_class()
         self.nthread = nthread or max(1, os.cpu_count() or 1)
-        self._max_lines = max_lines
-        self._batch = None
-        self._nsim = 0
-        self.n_refined = 0  # beams whose whole footprint was cast, last cast()
-        self.n_rays = 0  # rays cast (padding included), last cast()
+        self.nsim = 2 * self.nthread
+        self.rays_per_sim = rays_per_sim
+        turning = turning_geoms(scene)
+        self._batches = {}
+        for name, hide in (("turning", ~turning), ("fixed", turning)):
+            model = copy.deepcopy(scene.model)
+            model.geom_group[hide] = _HIDDEN_GROUP
+            self._batches[name] = mujoco.batch.Batch(model, nsim=self.nsim, nthread=self.nthread)
         stat = scene.model.stat
+        # Padding rays: from far above the scene going up; they miss every bounding box.
         self._pad_origin = np.asarray(stat.center) + (0.0, 0.0, 10.0 * max(stat.extent, 1.0))
 
-    def _ensure_batch(self, n: int):
-        if self._batch is None or self._nsim < n:
-            self._nsim = max(n, 1)
-            self._batch = mujoco.batch.Batch(self.scene.model, nsim=self._nsim, nthread=self.nthread)
-        return self._batch
+    def _cast(self, which, origins, dirs, normals) -> Hits:
+        origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+        n = len(origins)
+        dist = np.empty(n)
+        geom = np.empty(n, dtype=np.int32)
+        normal = np.empty((n, 3)) if normals else None
+        per_call = self.nsim * self.rays_per_sim
+        for lo in range(0, n, per_call):
+            hi = min(lo + per_call, n)
+            count = hi - lo
+            nsim = min(self.nsim, count)
+            per = -(-count // nsim)
+            pnt = np.empty((nsim * per, 3))
+            vec = np.empty((nsim * per, 3))
+            pnt[:count], vec[:count] = origins[lo:hi], dirs[lo:hi]
+            pnt[count:], vec[count:] = self._pad_origin, (0.0, 0.0, 1.0)
+            out = self._batches[which].ray(pnt.reshape(nsim, per, 3), vec.reshape(nsim, per, 3),
+                                  geomgroup=CAST_GEOMGROUP, flg_static=True,
+                                  bodyexclude=self.scene.lidar_body_id, ids=np.arange(nsim),
+                                  normal=normals)
+            dist[lo:hi] = out[0].reshape(-1)[:count]
+            geom[lo:hi] = out[1].reshape(-1)[:count]
+            if normals:
+                normal[lo:hi] = out[2].reshape(-1, 3)[:count]
+        return Hits(dist, geom, normal)
 
-    def _ray(self, batch, pnt, vec, ids):
-        self.n_rays += len(ids) * (np.shape(vec)[-2])
-        return batch.ray(pnt, vec, geomgroup=LIDAR_GEOMGROUP, flg_static=True,
-                         bodyexclude=self.scene.lidar_body_id, ids=ids, normal=True)
+    def cast_turning(self, origins, dirs, *, normals=False) -> Hits:
+        return self._cast("turning", origins, dirs, normals)
 
-    def _combine(self, dist, geom, normal, dirs, weights):
-        cos = np.abs(np.einsum("...k,...k->...", normal, dirs))
-        refl = self.reflectance[self.scene.geom_class[geom]]
-        ret = combine_footprint(dist, cos, refl, weights, range_max_m=self.lidar.range_max_m)
-        dom = np.maximum(ret.dominant, 0)
-        geom_dom = np.where(ret.dominant >= 0,
-                            np.take_along_axis(geom, dom[..., None], axis=-1)[..., 0], -1)
-        return ret, geom_dom
-
-    def cast(self, qpos_turntable_rad: np.ndarray, *, progress: Progress | None = None,
-             chunk_lines: int = 64) -> dict[str, np.ndarray]:
-        """Combined footprint returns per beam, one line per turntable angle.
-
-        Args:
-          qpos_turntable_rad: (n_lines,) float64, the true hinge angle per line.
-          progress: called with (lines done, lines total) after each chunk.
-          chunk_lines: lines per batch call.
-
-        Returns:
-          dict of (n_lines, n_beams) arrays: ``range_m`` (NaN: no echo),
-          ``power``, ``cos_incidence``, ``spread_m`` (float64) and ``geom_id``
-          (int32, the geom returning most power, -1: none).
-        """
-        q = np.asarray(qpos_turntable_rad, dtype=np.float64).reshape(-1)
-        n, n_beams = len(q), len(self.beam_angles_rad)
-        out = {k: np.full((n, n_beams), np.nan) for k in ("range_m", "power", "cos_incidence",
-                                                         "spread_m")}
-        out["geom_id"] = np.full((n, n_beams), -1, dtype=np.int32)
-        pattern = self.pattern
-        probe = pattern.probe if self.adaptive else np.arange(pattern.n_subrays)
-        rest = np.setdiff1d(np.arange(pattern.n_subrays), probe)
-        probe_o = self.origins_base[:, probe].reshape(-1, 3)
-        probe_d = self.dirs_base[:, probe].reshape(-1, 3)
-        adr = self.scene.turntable_qpos_adr
-        self.n_refined = 0
-        self.n_rays = 0
-        for start in range(0, n, self._max_lines):
-            block = q[start:start + self._max_lines]
-            batch = self._ensure_batch(len(block))
-            batch.bind("qpos")[: len(block), adr] = block
-            for lo in range(0, len(block), chunk_lines):
-                ids = np.arange(lo, min(lo + chunk_lines, len(block)))
-                rows = start + ids
-                d, g, nrm = self._ray(batch, probe_o, probe_d, ids)
-                c = len(ids)
-                d = d.reshape(c, n_beams, len(probe))
-                g = g.reshape(c, n_beams, len(probe))
-                nrm = nrm.reshape(c, n_beams, len(probe), 3)
-                if self.adaptive:
-                    hit = (self.origins_base[None, :, probe]
-                           + np.maximum(d, 0)[..., None] * self.dirs_base[None, :, probe])
-                    refine = ~coplanar_probes(hit, nrm, g, tolerance_m=self.model.flat_tolerance_m)
-                    # Flat footprints: the axis ray stands for the whole footprint.
-                    ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1],
-                                                  self.dirs_base[None, :, :1], np.ones(1))
-                else:
-                    refine = np.zeros((c, n_beams), dtype=bool)
-                    ret, geom_dom = self._combine(d, g, nrm, self.dirs_base[None],
-                                                  pattern.weights)
-                self._store(out, rows, slice(None), ret, geom_dom)
-                if refine.any():
-                    self._refine(out, batch, ids, rows, refine, d, g, nrm, probe, rest)
-                if progress is not None:
-                    progress(int(rows[-1]) + 1, n)
-        return out
-
-    @staticmethod
-    def _store(out, rows, beams, ret, geom_dom):
-        out["range_m"][rows, beams] = ret.range_m
-        out["power"][rows, beams] = ret.power
-        out["cos_incidence"][rows, beams] = ret.cos_incidence
-        out["spread_m"][rows, beams] = ret.spread_m
-        out["geom_id"][rows, beams] = geom_dom
-
-    def _refine(self, out, batch, ids, rows, refine, d, g, nrm, probe, rest):
-        """Casts the non-probe sub-rays of the flagged beams and combines all."""
-        pattern = self.pattern
-        line_of, beam_of = np.nonzero(refine)
-        self.n_refined += len(line_of)
-        counts = refine.sum(axis=1)
-        m = int(counts.max())
-        n_rest = len(rest)
-        # Each line's flagged beams first, then padding: rays from far above
-        # the scene going up, which miss every bounding box at once.
-        starts = np.cumsum(counts) - counts
-        pos = np.arange(len(line_of)) - np.repeat(starts, counts)
-        pnt = np.empty((len(ids), m, n_rest, 3))
-        vec = np.empty((len(ids), m, n_rest, 3))
-        pnt[:] = self._pad_origin
-        vec[:] = (0.0, 0.0, 1.0)
-        pnt[line_of, pos] = self.origins_base[beam_of][:, rest]
-        vec[line_of, pos] = self.dirs_base[beam_of][:, rest]
-        pnt = pnt.reshape(len(ids), m * n_rest, 3)
-        vec = vec.reshape(len(ids), m * n_rest, 3)
-        d2, g2, n2 = self._ray(batch, pnt, vec, ids)
-        d2 = d2.reshape(len(ids), m, n_rest)[line_of, pos]
-        g2 = g2.reshape(len(ids), m, n_rest)[line_of, pos]
-        n2 = n2.reshape(len(ids), m, n_rest, 3)[line_of, pos]
-        k = len(line_of)
-        dist = np.empty((k, pattern.n_subrays))
-        geom = np.empty((k, pattern.n_subrays), dtype=np.int32)
-        normal = np.empty((k, pattern.n_subrays, 3))
-        dist[:, probe], geom[:, probe], normal[:, probe] = (d[line_of, beam_of], g[line_of, beam_of],
-                                                            nrm[line_of, beam_of])
-        dist[:, rest], geom[:, rest], normal[:, rest] = d2, g2, n2
-        ret, geom_dom = self._combine(dist, geom, normal, self.dirs_base[beam_of], pattern.weights)
-        self._store(out, rows[line_of], beam_of, ret, geom_dom)
+    def cast_fixed(self, origins, dirs, *, normals=False) -> Hits:
+        return self._cast("fixed", origins, dirs, normals)
 
 
-def _groups(*groups: int) -> np.ndarray:
-    return np.array([1 if g in groups else 0 for g in range(mujoco.mjNGROUP)], dtype=np.uint8)
+BACKENDS = ("mujoco", "embree", "auto")
 
 
-TURNING_GEOMGROUP = _groups(1, 2)  # disk and plant: they turn with the table
+def make_backend(scene: Scene, name: str = "mujoco", *, nthread: int | None = None) -> Backend:
+    """A backend by name: "mujoco", "embree" (needs ``embreex``), or "auto" (Embree if installed).
+
+    Raises:
+      ValueError: an unknown name, or "embree" without ``embreex`` installed.
+    """
+    if name not in BACKENDS:
+        raise ValueError(f"ray caster must be one of {', '.join(BACKENDS)}, got {name!r}")
+    if name in ("embree", "auto"):
+        try:
+            from plantsim.sensor.embree import EmbreeBackend, embree_available
+        except ImportError:
+            available = False
+        else:
+            available = embree_available()
+        if available:
+            return EmbreeBackend(scene)
+        if name == "embree":
+            raise ValueError("caster = \"embree\" needs the embreex package: pip install "
+                             "'plantsim[fast]', or use caster = \"mujoco\"")
+    return MujocoBackend(scene, nthread=nthread)
 
 
-FIXED_GEOMGROUP = _groups(0)  # bench, servo housing, post
+def rotate_z(vectors: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+    """Rotates (..., 3) vectors about +Z by (...) angles (right hand)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    x, y = vectors[..., 0], vectors[..., 1]
+    return np.stack([c * x - s * y, s * x + c * y, vectors[..., 2]], axis=-1)
 
 
-class PoseCaster:
-    """Casts every beam at its own turntable angle (see the module docstring)."""
+class Caster:
+    """Casts a sensor's rays at given turntable angles.
 
-    def __init__(self, scene: Scene, lidar: LidarSpec, *, nthread: int | None = None, nsim: int = 64):
+    Args:
+      scene: the compiled scan scene.
+      origins_base: (n_rays, 3) float64, metres, base frame: the ray table.
+      dirs_base: (n_rays, 3) float64 unit vectors, base frame.
+      backend: a :class:`Backend` (default: MuJoCo's).
+      nthread: threads of the default backend.
+
+    Attributes:
+      pad_id: a ray id that casts nothing (a miss), for padding ragged selections.
+      n_rays_cast: turning rays cast so far (padding included).
+    """
+
+    def __init__(self, scene: Scene, origins_base: np.ndarray, dirs_base: np.ndarray, *,
+                 backend: Backend | None = None, nthread: int | None = None):
         self.scene = scene
-        self.lidar = lidar
-        self.beam_angles_rad = lidar.beam_angles_rad()
-        self.origin_base, self.dirs_base = ray_origins_dirs_base(scene.T_base_lidar, self.beam_angles_rad)
-        self.nsim = nsim
-        nthread = nthread or max(1, os.cpu_count() or 1)
-        # Every simulation keeps the hinges at 0: the turntable frame is the base frame.
-        self._batch = mujoco.batch.Batch(scene.model, nsim=nsim, nthread=nthread)
-        d, g = self._batch.ray(self.origin_base, self.dirs_base, geomgroup=FIXED_GEOMGROUP,
-                               flg_static=True, bodyexclude=scene.lidar_body_id, ids=np.array([0]))
-        self._rig_dist, self._rig_geom = d[0], g[0]
+        self.backend = backend or MujocoBackend(scene, nthread=nthread)
+        n = len(origins_base)
+        self.pad_id = n
+        self.origins_base = np.asarray(origins_base, dtype=np.float64).reshape(n, 3)
+        self.dirs_base = np.asarray(dirs_base, dtype=np.float64).reshape(n, 3)
+        fixed = self.backend.cast_fixed(self.origins_base, self.dirs_base, normals=True)
+        self._fixed_dist = np.append(fixed.dist_m, -1.0)
+        self._fixed_geom = np.append(fixed.geom_id, -1).astype(np.int32)
+        self._fixed_normal = np.vstack([fixed.normal_base, np.zeros((1, 3))])
+        self.n_rays_cast = 0
 
-    def cast(self, table_rad: np.ndarray, *, progress: Progress | None = None
-             ) -> tuple[np.ndarray, np.ndarray]:
-        """First hits of every beam at its own true table angle.
+    def cast(self, ray_ids: np.ndarray, table_rad: np.ndarray, *, normals: bool = False,
+             chunk_lines: int = 64, progress: Progress | None = None) -> Hits:
+        """First hits of the selected rays, each at its own turntable angle.
 
         Args:
-          table_rad: (n_lines, n_beams) float64, true turntable angle per beam.
+          ray_ids: (n_lines, k) int, indices into the ray table (``pad_id``: none).
+          table_rad: (n_lines,) or (n_lines, k) float64, the true turntable angle
+            per line or per ray, radians.
+          normals: also return surface normals (base frame).
+          chunk_lines: lines per backend call (progress granularity).
           progress: called with (lines done, lines total).
 
         Returns:
-          dist_m (n_lines, n_beams) float64 (-1: miss), geom_id (n_lines, n_beams) int32.
+          :class:`Hits` of shape (n_lines, k).
         """
+        ids = np.asarray(ray_ids)
+        n_lines, k = ids.shape
         theta = np.asarray(table_rad, dtype=np.float64)
-        n_lines, n_beams = theta.shape
-        dist = np.empty(theta.shape)
-        geom = np.empty(theta.shape, dtype=np.int32)
-        for lo in range(0, n_lines, self.nsim):
-            hi = min(lo + self.nsim, n_lines)
-            R_turntable_base = rot_z_batch(-theta[lo:hi].ravel()).reshape(hi - lo, n_beams, 3, 3)
-            origins_turntable = R_turntable_base @ self.origin_base
-            dirs_turntable = np.einsum("lbij,bj->lbi", R_turntable_base, self.dirs_base)
-            d, g = self._batch.ray(origins_turntable, dirs_turntable, geomgroup=TURNING_GEOMGROUP,
-                                   flg_static=False, bodyexclude=self.scene.lidar_body_id,
-                                   ids=np.arange(hi - lo))
-            rig_nearer = (self._rig_dist >= 0) & ((d < 0) | (self._rig_dist < d))
-            dist[lo:hi] = np.where(rig_nearer, self._rig_dist, d)
-            geom[lo:hi] = np.where(rig_nearer, self._rig_geom, g)
+        theta = np.broadcast_to(theta[:, None] if theta.ndim == 1 else theta, (n_lines, k))
+        dist = np.empty((n_lines, k))
+        geom = np.empty((n_lines, k), dtype=np.int32)
+        normal = np.empty((n_lines, k, 3)) if normals else None
+        origins = np.vstack([self.origins_base, np.zeros((1, 3))])
+        dirs = np.vstack([self.dirs_base, (0.0, 0.0, 1.0)])
+        for lo in range(0, n_lines, chunk_lines):
+            hi = min(lo + chunk_lines, n_lines)
+            sel, th = ids[lo:hi], theta[lo:hi]
+            real = sel != self.pad_id
+            o = rotate_z(origins[sel], -th)
+            d = rotate_z(dirs[sel], -th)
+            hits = self.backend.cast_turning(o[real], d[real], normals=normals)
+            self.n_rays_cast += int(real.sum())
+            dt = np.full(sel.shape, -1.0)
+            gt = np.full(sel.shape, -1, dtype=np.int32)
+            dt[real], gt[real] = hits.dist_m, hits.geom_id
+            df, gf = self._fixed_dist[sel], self._fixed_geom[sel]
+            rig_nearer = (df >= 0) & ((dt < 0) | (df < dt))
+            dist[lo:hi] = np.where(rig_nearer, df, dt)
+            geom[lo:hi] = np.where(rig_nearer, gf, gt)
+            if normals:
+                nt = np.zeros(sel.shape + (3,))
+                nt[real] = hits.normal_base
+                nt = rotate_z(nt, th)  # back from the turntable frame to the base frame
+                normal[lo:hi] = np.where(rig_nearer[..., None], self._fixed_normal[sel], nt)
             if progress is not None:
                 progress(hi, n_lines)
-        return dist, geom
+        return Hits(dist, geom, normal)

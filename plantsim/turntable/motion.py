@@ -1,110 +1,194 @@
-"""Scans with a physical turntable: dynamic step-and-shoot and continuous rotation.
+"""Turntable motions: when each scan line is taken, where the table truly is, what the encoder says.
 
-Both run the servo's physics first (:class:`plantsim.dynamics.TurntableSim`,
-recording the true angle at every physics step), then cast every beam at the
-true turntable angle of its own instant, and give the reconstruction what a real
-rig knows: encoder readings interpolated to each beam's time (de-skew), or, with
-``deskew`` off, one angle per line as a naive rig would use.
+A motion is one part of a scan (:mod:`plantsim.scan.pipeline`); it knows nothing
+of the LiDAR but its timing. Given the schedule it returns a
+:class:`MotionRecord`: each line's time stamp (its first beam), the true
+turntable angle at any instant, and the host's log of encoder readings, which is
+all a reconstruction may use. The simulated motions are
 
-Casting each beam at its own pose is exact and cheap because only the disk and
-the plant turn: each ray is rotated into the turntable frame by
-``Rz(-theta_true(t_beam))`` and cast against geom groups {1, 2} with the hinge at
-0, and the world ray is cast once against the fixed rig (group 0); the nearer
-hit wins.
+- :func:`kinematic_step`: the table is exactly at each commanded angle for the
+  whole line (a perfect motor); the encoder is read while the table rests;
+- :func:`kinematic_continuous`: the table turns at exactly ``rpm`` (a perfect
+  motor at constant speed);
+- :func:`physics_step` and :func:`physics_continuous`: the servo in MuJoCo
+  (:class:`plantsim.turntable.dynamics.TurntableSim`: PID, torque limit,
+  friction, jitter, backlash), the true angle recorded at every physics step.
+
+The real turntable (a servo that reports its angle) is driven line by line by
+the scan session instead (:mod:`plantsim.scan.session`).
+
+Times are integer nanoseconds since the scan's start where they are stored, as
+in the raw record and its ROS 2 bag.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 
 import numpy as np
 
+from plantsim.errors import SimulationError
 from plantsim.turntable import encoder as encoder_mod
-from plantsim.turntable.dynamics import DynamicScene, Trajectory, TurntableSim
-from plantsim.turntable.encoder import EncoderReadings
-from plantsim.turntable.options import TurntableOptions
-from plantsim.scan.schedule import Progress, StepScan
-from plantsim.scan.raw import RawScan
-from plantsim.sensor.casting import PoseCaster, gate_ranges
-from plantsim.rig.scene import Scene
-from plantsim.sensor.spec import LidarSpec
+from plantsim.turntable.dynamics import DynamicScene, Trajectory, TurntableDynamics, TurntableSim
+from plantsim.turntable.encoder import EncoderConfig, EncoderReadings
 
-log = logging.getLogger(__name__)
+
+@dataclasses.dataclass(frozen=True)
+class LineTiming:
+    """The LiDAR's timing as a motion needs it.
+
+    Attributes:
+      scan_period_s: one mirror turn (one line).
+      first_beam_s: time of the first beam after the mirror's step 0, s.
+      beam_offsets_s: (n_beams,) float64, each beam's time after the first beam, s.
+    """
+
+    scan_period_s: float
+    first_beam_s: float
+    beam_offsets_s: np.ndarray
+
+    @property
+    def last_beam_s(self) -> float:
+        """The last beam's time after the first, s."""
+        return float(self.beam_offsets_s[-1])
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class DynamicScanResult:
-    """A dynamic scan's raw record and what produced it.
+class MotionRecord:
+    """What a simulated motion did.
 
     Attributes:
-      raw: the raw record; ``turntable_angle_rad`` is what the reconstruction
-        believes (encoder-based), ``true_turntable_angle_rad`` the ground truth.
-      trajectory: the physics, one row per step.
-      readings: the host's encoder log.
-      commanded_rad: (n_lines,) float64, the commanded angle per line (step
-        mode) or the line's reading (continuous mode).
+      kind: "kinematic" or "physics".
+      line_stamp_ns: (n_lines,) int64, each line's first beam, ns since the scan's start.
+      commanded_rad: (n_lines,) float64, commanded angle per line (NaN: not stepped).
+      readings: the encoder log (time stamps are whole nanoseconds).
+      trajectory: the physics, one row per step (None for a kinematic motion).
+      constant_rad: (n_lines,) the table's angle during each line when it rests
+        exactly there (kinematic step), else None.
+      rpm: the constant speed of a kinematic continuous motion, else None.
     """
 
-    raw: RawScan
-    trajectory: Trajectory
-    readings: EncoderReadings
+    kind: str
+    line_stamp_ns: np.ndarray
     commanded_rad: np.ndarray
+    readings: EncoderReadings
+    trajectory: Trajectory | None = None
+    constant_rad: np.ndarray | None = None
+    rpm: float | None = None
+
+    def true_angles(self, beam_time_s: np.ndarray) -> np.ndarray:
+        """The true turntable angle at each beam's instant.
+
+        Args:
+          beam_time_s: (n_lines, n_beams) float64, s since the scan's start.
+
+        Returns:
+          (n_lines, n_beams) float64 radians, or (n_lines,) when the table rests
+          during each line (a step scan's kinematic motion: one angle per line).
+        """
+        if self.constant_rad is not None:
+            return self.constant_rad
+        if self.rpm is not None:
+            return _omega(self.rpm) * np.asarray(beam_time_s)
+        return self.trajectory.table_at(beam_time_s)
+
+
+def _omega(rpm: float) -> float:
+    return rpm * 2 * math.pi / 60
+
+
+def _quantised(readings: EncoderReadings) -> EncoderReadings:
+    """Readings with whole-nanosecond time stamps (as a JointState carries them)."""
+    from plantsim.scan.raw import ns_to_s, s_to_ns
+
+    return EncoderReadings(time_s=ns_to_s(s_to_ns(readings.time_s)), angle_rad=readings.angle_rad)
+
+
+def _stamps_ns(line_t0_s: np.ndarray, timing: LineTiming) -> np.ndarray:
+    from plantsim.scan.raw import s_to_ns
+
+    return s_to_ns(np.asarray(line_t0_s) + timing.first_beam_s)
+
+
+def kinematic_step(angles_rad: np.ndarray, step_time_s: float, timing: LineTiming,
+                   encoder: EncoderConfig, rng: np.random.Generator) -> MotionRecord:
+    """A perfect motor: line k is taken at ``k * step_time_s``, the table exactly at angle k.
+
+    The host reads the encoder at its read rate while the line is taken (and at
+    the line's last beam), so that readings never straddle a move.
+    """
+    from plantsim.scan.raw import ns_to_s
+
+    angles = np.asarray(angles_rad, dtype=np.float64)
+    stamps = _stamps_ns(step_time_s * np.arange(len(angles)), timing)
+    span = timing.last_beam_s
+    # Readings from the first beam on, and one just after the last beam (whole
+    # nanoseconds), so that every beam of the line lies between two readings of it.
+    per_line_ns = np.round(np.arange(0.0, span, 1.0 / encoder.read_rate_hz) * 1e9).astype(np.int64)
+    per_line_ns = np.append(per_line_ns, int(np.ceil(span * 1e9)) + 1)
+    t_read = ns_to_s((stamps[:, None] + per_line_ns[None, :]).ravel())
+    angle_true = np.repeat(angles, len(per_line_ns))
+    readings = EncoderReadings(time_s=t_read, angle_rad=encoder_mod.measure(angle_true, encoder, rng,
+                                                                            time_s=t_read))
+    return MotionRecord(kind="kinematic", line_stamp_ns=stamps, commanded_rad=angles,
+                        readings=_quantised(readings), constant_rad=angles)
+
+
+def continuous_line_count(rpm: float, sweep_deg: float, scan_period_s: float) -> int:
+    """Lines a continuous scan takes to turn ``sweep_deg`` at ``rpm``."""
+    return max(1, int(math.ceil(math.radians(sweep_deg) / (_omega(rpm) * scan_period_s) - 1e-9)))
+
+
+def kinematic_continuous(rpm: float, sweep_deg: float, timing: LineTiming, encoder: EncoderConfig,
+                         rng: np.random.Generator) -> MotionRecord:
+    """A perfect motor at constant speed: the table is at ``omega * t`` from t = 0."""
+    n = continuous_line_count(rpm, sweep_deg, timing.scan_period_s)
+    stamps = _stamps_ns(timing.scan_period_s * np.arange(n), timing)
+    t_end = float(stamps[-1]) / 1e9 + timing.last_beam_s + 2.0 / encoder.read_rate_hz + encoder.latency_s
+    omega = _omega(rpm)
+    readings = encoder_mod.read(np.array([0.0, t_end]), np.array([0.0, omega * t_end]), encoder, rng,
+                                t_end_s=t_end)
+    return MotionRecord(kind="kinematic", line_stamp_ns=stamps, commanded_rad=np.full(n, np.nan),
+                        readings=_quantised(readings), rpm=float(rpm))
 
 
 def _steps(duration_s: float, dt: float) -> int:
     return max(0, int(math.ceil(duration_s / dt - 1e-9)))
 
 
-def _finish(scene: Scene, lidar: LidarSpec, sim: TurntableSim, options: TurntableOptions,
-            line_t0: np.ndarray, line_angle_rad: np.ndarray | None, rng: np.random.Generator,
-            caster: PoseCaster | None, progress: Progress | None) -> DynamicScanResult:
-    time_s = line_t0[:, None] + lidar.beam_time_offsets_s()[None, :]
+def _physics_record(sim: TurntableSim, line_t0: np.ndarray, commanded: np.ndarray, timing: LineTiming,
+                    encoder: EncoderConfig, rng: np.random.Generator) -> MotionRecord:
+    stamps = _stamps_ns(line_t0, timing)
     # Run on past the last beam so that every beam has readings on both sides.
-    t_needed = float(time_s[-1, -1]) + 1.0 / options.encoder.read_rate_hz + options.encoder.latency_s
+    t_needed = float(stamps[-1]) / 1e9 + timing.last_beam_s + 1.0 / encoder.read_rate_hz + encoder.latency_s
     sim.advance(_steps(t_needed - sim.time_s, sim.dt) + 1)
     trajectory = sim.trajectory()
-    true_rad = trajectory.table_at(time_s)
-    readings = encoder_mod.read(trajectory.time_s, trajectory.shaft_rad, options.encoder, rng,
+    readings = encoder_mod.read(trajectory.time_s, trajectory.shaft_rad, encoder, rng,
                                 t_end_s=trajectory.time_s[-1])
-    if line_angle_rad is None:
-        line_angle_rad = readings.angles_at(line_t0)
-    believed = readings.angles_at(time_s) if options.deskew else np.broadcast_to(
-        line_angle_rad[:, None], time_s.shape)
-    caster = caster or PoseCaster(scene, lidar)
-    dist, geom = caster.cast(true_rad, progress=progress)
-    range_m, status = gate_ranges(dist, lidar)
-    raw = RawScan(turntable_angle_rad=believed, true_turntable_angle_rad=true_rad,
-                  beam_angle_rad=caster.beam_angles_rad, range_m=range_m, status=status,
-                  hit_class=scene.geom_class[geom], geom_id=geom, time_s=time_s,
-                  T_base_lidar=scene.T_base_lidar)
-    return DynamicScanResult(raw=raw, trajectory=trajectory, readings=readings,
-                             commanded_rad=np.asarray(line_angle_rad))
+    return MotionRecord(kind="physics", line_stamp_ns=stamps, commanded_rad=np.asarray(commanded),
+                        readings=_quantised(readings), trajectory=trajectory)
 
 
-def dynamic_step_and_shoot(dscene: DynamicScene, lidar: LidarSpec, schedule: StepScan,
-                           options: TurntableOptions, rng: np.random.Generator, *,
-                           caster: PoseCaster | None = None, progress: Progress | None = None
-                           ) -> DynamicScanResult:
-    """Step-and-shoot with the servo: command, wait until settled, scan the next line.
+def physics_step(dscene: DynamicScene, angles_rad: np.ndarray, timing: LineTiming, encoder: EncoderConfig,
+                 rng: np.random.Generator) -> MotionRecord:
+    """Step-and-shoot with the servo: command, wait until settled, take the next line.
 
     The LiDAR runs freely at its scan period; the line used is the first that
     starts after the table has settled (profile done, shaft within
     ``settle_tolerance_rad`` of the goal and slower than
     ``settle_velocity_rad_s``, like the servo's Moving flag). The table may
-    still creep during the line; every beam is cast at its own true angle.
-    ``schedule.step_time_s`` is not used: the physics decides each step's time.
+    still creep during the line; the record has its true angle at every instant.
 
     Raises:
-      SimulationError: if a step does not settle within ``settle_timeout_s``,
-        or the simulation is unstable (see :class:`TurntableSim`).
+      SimulationError: a step does not settle within ``settle_timeout_s``, or the
+        simulation is unstable (see :class:`TurntableSim`).
     """
-    dyn = options.dynamics
+    dyn: TurntableDynamics = dscene.dynamics
     sim = TurntableSim(dscene, rng)
-    period = lidar.scan_period_s
+    period = timing.scan_period_s
     check_s = 0.01
-    goals = schedule.angles_rad()
+    goals = np.asarray(angles_rad, dtype=np.float64)
     line_t0 = np.empty(len(goals))
     for k, goal in enumerate(goals):
         profile = sim.command(float(goal))
@@ -113,8 +197,6 @@ def dynamic_step_and_shoot(dscene: DynamicScene, lidar: LidarSpec, schedule: Ste
         while not (abs(sim.shaft_rad - goal) <= dyn.settle_tolerance_rad
                    and abs(sim.shaft_velocity_rad_s) <= dyn.settle_velocity_rad_s):
             if sim.time_s >= deadline:
-                from plantsim.errors import SimulationError
-
                 raise SimulationError(
                     f"line {k}: the turntable did not settle at {math.degrees(goal):.4g} deg within "
                     f"settle_timeout_s ({dyn.settle_timeout_s:g} s): error "
@@ -126,26 +208,24 @@ def dynamic_step_and_shoot(dscene: DynamicScene, lidar: LidarSpec, schedule: Ste
         # The next line the free-running LiDAR starts after settling.
         line_t0[k] = math.ceil(sim.time_s / period - 1e-9) * period
         sim.advance(_steps(line_t0[k] + period - sim.time_s, sim.dt))
-    return _finish(dscene.scene, lidar, sim, options, line_t0, goals, rng, caster, progress)
+    return _physics_record(sim, line_t0, goals, timing, encoder, rng)
 
 
-def continuous_scan(dscene: DynamicScene, lidar: LidarSpec, sweep_deg: float,
-                    options: TurntableOptions, rng: np.random.Generator, *,
-                    caster: PoseCaster | None = None, progress: Progress | None = None
-                    ) -> DynamicScanResult:
-    """The table turns at ``options.rpm`` while the LiDAR scans at its own rate.
+def physics_continuous(dscene: DynamicScene, rpm: float, sweep_deg: float, timing: LineTiming,
+                       encoder: EncoderConfig, rng: np.random.Generator) -> MotionRecord:
+    """The servo turns the table at ``rpm`` while the LiDAR scans at its own rate.
 
     The servo is commanded to a far goal with its profile velocity set to the
     scan speed; lines are taken from ``spinup_margin_s`` after the ramp to full
     speed until the table has turned ``sweep_deg``.
     """
-    dyn = options.dynamics
+    dyn = dscene.dynamics
     sim = TurntableSim(dscene, rng)
-    omega = options.rpm * 2 * math.pi / 60
+    omega = _omega(rpm)
     accel = dyn.servo.profile_acceleration
-    period = lidar.scan_period_s
+    period = timing.scan_period_s
     t_ramp = 0.0 if math.isinf(accel) else omega / accel
-    n_lines = max(1, int(math.ceil(math.radians(sweep_deg) / (omega * period) - 1e-9)))
+    n_lines = continuous_line_count(rpm, sweep_deg, period)
     first = math.ceil((t_ramp + dyn.spinup_margin_s) / period - 1e-9) * period
     line_t0 = first + period * np.arange(n_lines)
     t_end = float(line_t0[-1]) + 2 * period
@@ -153,9 +233,24 @@ def continuous_scan(dscene: DynamicScene, lidar: LidarSpec, sweep_deg: float,
     goal = omega * (t_end - t_ramp / 2) + braking + omega * 1.0  # cruise well past the last beam
     sim.command(goal, profile_velocity_rad_s=omega)
     sim.advance(_steps(t_end, sim.dt))
-    return _finish(dscene.scene, lidar, sim, options, line_t0, None, rng, caster, progress)
+    return _physics_record(sim, line_t0, np.full(n_lines, np.nan), timing, encoder, rng)
 
 
-# --- configuration from plain data (the [turntable] TOML section) --------------------
+def physics_diagnostics(record: MotionRecord, beam_time_s: np.ndarray,
+                        true_rad: np.ndarray, believed_rad: np.ndarray) -> dict:
+    """What the turntable did, for the sidecar: tracking, backlash and angle errors.
 
-
+    Args:
+      record: a motion record.
+      beam_time_s, true_rad, believed_rad: (n_lines, n_beams) per-beam times,
+        true angles and the angles the reconstruction used.
+    """
+    out = {"max_believed_minus_true_rad": float(np.max(np.abs(believed_rad - true_rad)))
+           if np.size(true_rad) else 0.0}
+    tr = record.trajectory
+    if tr is not None:
+        out["max_tracking_error_rad"] = float(np.max(np.abs(tr.shaft_rad - tr.setpoint_rad)))
+        out["max_table_minus_shaft_rad"] = float(np.max(np.abs(tr.table_rad - tr.shaft_rad)))
+        out["physics_steps"] = int(len(tr.time_s) - 1)
+        out["simulated_time_s"] = float(tr.time_s[-1])
+    return out

@@ -10,8 +10,6 @@ from plantsim.turntable.encoder import EncoderConfig
 
 
 MODES = ("step", "continuous")
-
-
 PHYSICS = ("auto", "kinematic", "dynamic")
 
 
@@ -19,22 +17,29 @@ PHYSICS = ("auto", "kinematic", "dynamic")
 class TurntableOptions:
     """How the turntable moves during a scan (the ``[turntable]`` TOML section).
 
+    Which motion runs (and why) is decided with the sensor and the rest of the
+    configuration by :func:`plantsim.scan.plan.plan_scan`; these are the settings.
+
     Attributes:
       mode: "step" (move, settle, scan one line) or "continuous" (the table
         turns at ``rpm`` while the LiDAR scans at its own rate).
-      physics: "auto" (kinematic for an ideal step scan, dynamic otherwise),
-        "kinematic" (the table is exactly at each commanded angle; step mode
-        only) or "dynamic" (the servo in MuJoCo).
+      physics: "kinematic" (a perfect motor: exactly at each commanded angle,
+        or exactly at ``rpm``), "dynamic" (the servo in MuJoCo: PID, friction,
+        jitter, backlash) or "auto" (kinematic for step scans and ideal runs,
+        dynamic for continuous scans and whenever servo or jitter settings are
+        given).
+      ideal: a perfect turntable: kinematic motion, exact encoder, no jitter.
       rpm: continuous mode's turntable speed, revolutions per minute.
       deskew: reconstruct with encoder readings interpolated to each beam's
         time; False uses one angle per line (the commanded angle in step mode,
-        the reading at the line's time stamp in continuous mode).
-      dynamics: servo, jitter, integrator and settling.
+        the reading at the line's first beam in continuous mode).
+      dynamics: servo, jitter, integrator and settling (physics only).
       encoder: the encoder and how it is read.
     """
 
     mode: str = "step"
     physics: str = "auto"
+    ideal: bool = False
     rpm: float = 1.0
     deskew: bool = True
     dynamics: TurntableDynamics = TurntableDynamics()
@@ -45,11 +50,9 @@ class TurntableOptions:
             raise ValueError(f"turntable mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.physics not in PHYSICS:
             raise ValueError(f"turntable physics must be one of {', '.join(PHYSICS)}, got {self.physics!r}")
-        if self.mode == "continuous" and self.physics == "kinematic":
-            raise ValueError("turntable physics = \"kinematic\" works only in step mode; a continuous "
-                             "scan needs the servo's physics (use physics = \"auto\" or \"dynamic\")")
-        if not isinstance(self.deskew, bool):
-            raise ValueError(f"turntable deskew must be true or false, got {self.deskew!r}")
+        for name in ("deskew", "ideal"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"turntable {name} must be true or false, got {getattr(self, name)!r}")
         if (isinstance(self.rpm, bool) or not isinstance(self.rpm, (int, float))
                 or not math.isfinite(self.rpm) or self.rpm <= 0):
             raise ValueError(f"turntable rpm must be a positive number, got {self.rpm!r}")
@@ -57,23 +60,6 @@ class TurntableOptions:
         if self.rpm > top_rpm:
             raise ValueError(f"turntable rpm ({self.rpm:g}) exceeds the servo's no-load speed "
                              f"({top_rpm:.3g} rpm); choose rpm <= {top_rpm:.3g} or a faster servo")
-
-    def uses_physics(self, ideal: bool) -> bool:
-        """Whether a scan with these options runs the servo's physics."""
-        if self.physics == "auto":
-            # A step scan stays kinematic unless asked for: the sensor model
-            # (footprint, noise) applies to kinematic scans, and its error
-            # dwarfs a settled servo's.
-            return self.mode == "continuous"
-        return self.physics == "dynamic"
-
-    def effective(self, ideal: bool) -> "TurntableOptions":
-        """These options with every imperfection off when ``ideal``: no jitter, exact encoder."""
-        if not ideal:
-            return self
-        return dataclasses.replace(
-            self, dynamics=self.dynamics.replace(jitter=JitterConfig()),
-            encoder=EncoderConfig.ideal(read_rate_hz=self.encoder.read_rate_hz))
 
     def replace(self, **changes) -> "TurntableOptions":
         return dataclasses.replace(self, **changes)
@@ -121,7 +107,7 @@ def turntable_options_from_dict(data: dict) -> TurntableOptions:
 
     data = dict(data)
     dyn_scalars = [f for f in _fields(TurntableDynamics) if f not in ("servo", "jitter")]
-    top = ["mode", "physics", "rpm", "deskew", "servo_preset"] + dyn_scalars
+    top = ["mode", "physics", "ideal", "rpm", "deskew", "servo_preset"] + dyn_scalars
     _unknown({k: v for k, v in data.items() if k not in _SUBTABLES}, top + list(_SUBTABLES), "turntable")
     preset = data.pop("servo_preset", "xm430-w350")
     if preset not in SERVO_PRESETS:

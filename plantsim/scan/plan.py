@@ -1,0 +1,221 @@
+"""Which parts a scan runs, decided once from the whole configuration.
+
+Nothing is silently ignored: a setting the chosen parts would not use is refused
+with one line that names it and says what to change; where the intent is clear
+the scan switches to the parts that honour it and says so (a note, logged and
+written to the sidecar). :func:`plan_scan` is the only place that decides.
+
+A setting counts as given when it was in the TOML file or on the command line
+(``RunConfig.explicit``) or, for a configuration built in Python, when it differs
+from its default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from plantsim.errors import ConfigError
+from plantsim.scan.config import RunConfig
+from plantsim.turntable.dynamics import JitterConfig, TurntableDynamics
+from plantsim.turntable.encoder import EncoderConfig
+
+# LidarSpec fields that only the realistic sensor model uses.
+REALISTIC_LIDAR_FIELDS = ("beam_divergence_rad", "beam_exit_diameter_m", "range_resolution_m",
+                          "range_sigma_m", "range_sigma_rel", "range_sigma_incidence_gain",
+                          "detection_range_white_m", "edge_range_spread_m")
+# [turntable] settings that only the servo's physics uses.
+PHYSICS_SCALARS = tuple(f.name for f in dataclasses.fields(TurntableDynamics)
+                        if f.name not in ("servo", "jitter"))
+STEP_ONLY_PHYSICS = ("settle_tolerance_rad", "settle_velocity_rad_s", "settle_timeout_s")
+CONTINUOUS_ONLY_PHYSICS = ("spinup_margin_s",)
+
+
+@dataclasses.dataclass(frozen=True)
+class ScanPlan:
+    """The parts a scan runs.
+
+    Attributes:
+      mode: "step" or "continuous".
+      sensor: "ideal" or "realistic".
+      motion: "kinematic", "physics" or "hardware".
+      encoder: the encoder the simulated motion is read through (None on hardware).
+      dynamics: the servo physics settings (None unless motion is "physics").
+      angle_mode: how the reconstruction gets each beam's turntable angle
+        (:data:`plantsim.scan.raw.ANGLE_MODES`).
+      notes: what was switched and why, said aloud.
+    """
+
+    mode: str
+    sensor: str
+    motion: str
+    encoder: EncoderConfig | None
+    dynamics: TurntableDynamics | None
+    angle_mode: str
+    notes: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"mode": self.mode, "sensor": self.sensor, "motion": self.motion,
+                "angle_mode": self.angle_mode, "notes": list(self.notes)}
+
+
+_DEFAULT = RunConfig()
+
+
+def _value(obj, path: str):
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def given(config: RunConfig, path: str) -> bool:
+    """Whether the user set the setting at a dotted path (``turntable.jitter.backlash_deg``)."""
+    if path in config.explicit or any(k.startswith(path + ".") for k in config.explicit):
+        return True
+    try:
+        return _value(config, path) != _value(_DEFAULT, path)
+    except AttributeError:
+        return False
+
+
+def _given_under(config: RunConfig, section: str, fields) -> list[str]:
+    return [f"{section}.{f}" for f in fields if given(config, f"{section}.{f}")]
+
+
+def _physics_settings(config: RunConfig, mode: str) -> list[str]:
+    """The given settings that need the servo's physics."""
+    keys = [k for k in sorted(config.explicit) if k.startswith(("turntable.servo.", "turntable.registers.",
+                                                                 "turntable.jitter."))
+            or k == "turntable.servo_preset"]
+    dyn = config.turntable.dynamics
+    if not keys:
+        if dyn.servo != _DEFAULT.turntable.dynamics.servo:
+            keys.append("turntable.servo")
+        for f in dataclasses.fields(JitterConfig):
+            if getattr(dyn.jitter, f.name) != getattr(JitterConfig(), f.name):
+                keys.append(f"turntable.jitter.{f.name}")
+    keys += [k for k in _given_under(config, "turntable.dynamics", PHYSICS_SCALARS)]
+    return [k.replace("turntable.dynamics.", "turntable.") for k in keys]
+
+
+def _key_name(path: str) -> str:
+    section, _, key = path.rpartition(".")
+    return f"[{section}] {key}" if section else key
+
+
+def plan_scan(config: RunConfig, *, hardware_turntable: bool = False) -> ScanPlan:
+    """Decides the parts of a scan, refusing settings they would not use.
+
+    Args:
+      config: the resolved configuration.
+      hardware_turntable: the table is a real (or emulated) servo, driven line by line.
+
+    Raises:
+      ConfigError: one line naming the setting and what to change.
+    """
+    tt = config.turntable
+    mode = tt.mode
+    notes: list[str] = []
+
+    # --- the sensor ---------------------------------------------------------
+    if config.ideal and given(config, "sensor") and config.sensor == "realistic":
+        raise ConfigError("ideal = true makes everything perfect but sensor = \"realistic\" asks for the "
+                          "sensor model: drop one (--sensor ideal --turntable dynamic keeps only the table "
+                          "imperfect)")
+    sensor = "ideal" if config.ideal else config.sensor
+    if sensor == "ideal":
+        unused = sorted(k for k in config.explicit if k.startswith("sensor_model.")
+                        or k in {f"lidar.{f}" for f in REALISTIC_LIDAR_FIELDS})
+        if not unused and not config.explicit and config.sensor_model != _DEFAULT.sensor_model:
+            unused = ["sensor_model"]
+        if unused:
+            why = "--ideal" if config.ideal else "sensor = \"ideal\""
+            raise ConfigError(f"{_key_name(unused[0])} is set but the sensor is ideal ({why}) and would not "
+                              f"use it: remove it, or use --sensor realistic")
+
+    # --- the schedule ---------------------------------------------------------
+    if mode == "continuous":
+        for key, what in (("scan.step_deg", "--step-deg"), ("scan.step_time_s", "step_time_s")):
+            if given(config, key):
+                raise ConfigError(
+                    f"{what} applies to step scans; a continuous scan's lines are rpm x scan period apart "
+                    f"({config.turntable.rpm * 6 * config.lidar.scan_period_s:.3g} deg at {config.turntable.rpm:g}"
+                    f" rpm): set --rpm instead, or use --mode step")
+        wrong = _given_under(config, "turntable.dynamics", STEP_ONLY_PHYSICS)
+        if wrong:
+            raise ConfigError(f"{_key_name(wrong[0].replace('dynamics.', ''))} applies to step scans (settling "
+                              f"after each move); remove it, or use --mode step")
+    else:
+        if given(config, "turntable.rpm"):
+            raise ConfigError("--rpm applies to continuous scans; a step scan moves by --step-deg: remove "
+                              "--rpm, or use --mode continuous")
+        wrong = _given_under(config, "turntable.dynamics", CONTINUOUS_ONLY_PHYSICS)
+        if wrong:
+            raise ConfigError("[turntable] spinup_margin_s applies to continuous scans; remove it, or use "
+                              "--mode continuous")
+
+    # --- the turntable --------------------------------------------------------
+    physics_keys = _physics_settings(config, mode)
+    encoder_keys = sorted(k for k in config.explicit if k.startswith("turntable.encoder."))
+    if not encoder_keys and tt.encoder != EncoderConfig():
+        encoder_keys = ["turntable.encoder"]
+    if hardware_turntable:
+        if config.ideal:
+            raise ConfigError("--ideal cannot make a real servo perfect: use --sensor ideal for an ideal "
+                              "simulated LiDAR on the rig")
+        simulated_only = physics_keys + encoder_keys + [
+            k for k in ("turntable.physics", "turntable.ideal", "turntable.rpm", "scan.step_time_s")
+            if given(config, k)]
+        if simulated_only:
+            raise ConfigError(f"{_key_name(simulated_only[0])} describes the simulated turntable; a rig scan "
+                              f"turns the real servo (its own encoder, gains and timing): remove it")
+        if mode == "continuous":
+            raise ConfigError("continuous rig scans need a LiDAR that streams on its own clock (the real URG); "
+                              "the simulated LiDAR takes lines at rest: use --mode step")
+        angle_mode = "line" if tt.deskew else "commanded"
+        return ScanPlan(mode=mode, sensor=sensor, motion="hardware", encoder=None, dynamics=None,
+                        angle_mode=angle_mode, notes=tuple(notes))
+
+    table_ideal = config.ideal or tt.ideal
+    if table_ideal and (physics_keys and any(k.startswith("turntable.jitter") for k in physics_keys)
+                        or encoder_keys):
+        key = next(k for k in physics_keys + encoder_keys if k.startswith(("turntable.jitter", "turntable.encoder")))
+        why = "--ideal" if config.ideal else "[turntable] ideal = true"
+        raise ConfigError(f"{_key_name(key)} is set but {why} makes the turntable perfect (no jitter, exact "
+                          f"encoder): remove it, or drop {why} (--sensor ideal keeps the LiDAR perfect alone)")
+    if tt.physics == "kinematic" and physics_keys:
+        raise ConfigError(f"{_key_name(physics_keys[0])} needs the servo's physics, but physics = \"kinematic\" "
+                          f"(a perfect motor): set physics = \"dynamic\" (--turntable dynamic), or remove it")
+    if tt.physics == "dynamic":
+        motion = "physics"
+    elif tt.physics == "kinematic" or table_ideal:
+        motion = "kinematic"
+    elif physics_keys:
+        motion = "physics"
+        notes.append(f"{_key_name(physics_keys[0])} is set: this {mode} scan runs the servo's physics (MuJoCo) "
+                     f"to honour it (physics = \"dynamic\")")
+    else:
+        motion = "physics" if mode == "continuous" else "kinematic"
+    if motion == "kinematic" and physics_keys:
+        raise ConfigError(f"{_key_name(physics_keys[0])} needs the servo's physics: remove it, or set physics = "
+                          f"\"dynamic\"")
+    if motion == "physics" and mode == "step" and given(config, "scan.step_time_s"):
+        raise ConfigError("step_time_s is the kinematic table's line spacing; with the servo's physics each "
+                          "step takes as long as the servo needs to settle: remove it")
+
+    if table_ideal:
+        encoder = EncoderConfig.ideal(read_rate_hz=tt.encoder.read_rate_hz)
+        dynamics = tt.dynamics.replace(jitter=JitterConfig()) if motion == "physics" else None
+    elif motion == "kinematic" and not encoder_keys:
+        # A perfect motor at rest, and nobody asked for an imperfect encoder.
+        encoder = EncoderConfig.ideal(read_rate_hz=tt.encoder.read_rate_hz)
+        dynamics = None
+    else:
+        encoder = tt.encoder
+        dynamics = tt.dynamics if motion == "physics" else None
+    if mode == "continuous":
+        angle_mode = "interpolate" if tt.deskew else "line"
+    else:
+        angle_mode = "interpolate" if tt.deskew else "commanded"
+    return ScanPlan(mode=mode, sensor=sensor, motion=motion, encoder=encoder, dynamics=dynamics,
+                    angle_mode=angle_mode, notes=tuple(notes))

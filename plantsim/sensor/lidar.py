@@ -1,0 +1,237 @@
+"""The simulated LiDAR: rays cast in the MuJoCo scene, then the sensor model.
+
+:class:`SimulatedLidar` is a line source of the scan pipeline. Given the true
+turntable angle of every beam (one per line in a step scan, one per beam when
+the table turns during the line), it returns what the sensor reports: ranges,
+statuses, intensities, and the ground truth of what each beam hit.
+
+- ideal sensor (``model`` None): one geometric ray per beam, its exact first
+  hit, the range limits, nothing else;
+- realistic sensor: every beam a footprint of sub-rays (adaptive: only beams
+  whose probe sub-rays do not land on one flat surface are cast in full), the
+  returns combined as a phase-measuring sensor does, then dropouts, noise,
+  quantisation and intensity (:func:`plantsim.sensor.model.apply_sensor`).
+
+Ranges come out as float32 values (what a ``sensor_msgs/LaserScan`` carries),
+so a scan's raw record and its ROS 2 bag hold the same numbers.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import NamedTuple
+
+import numpy as np
+
+from plantsim.rig.geometry import beam_dirs_lidar
+from plantsim.rig.scene import Scene
+from plantsim.sensor import casting
+from plantsim.sensor.casting import Backend, Caster, Progress, gate_ranges
+from plantsim.sensor.footprint import coplanar_probes, combine_footprint, subray_pattern, subrays_lidar
+from plantsim.sensor.model import SensorModel, apply_sensor
+from plantsim.sensor.spec import BeamStatus, LidarSpec
+
+log = logging.getLogger(__name__)
+
+
+class Lines(NamedTuple):
+    """What the sensor reported for some lines; arrays (n_lines, n_beams).
+
+    range_m float64 (float32 values; NaN unless OK), status uint8 BeamStatus,
+    intensity float32 or None, hit_class uint8 HitClass, geom_id int32.
+    """
+
+    range_m: np.ndarray
+    status: np.ndarray
+    intensity: np.ndarray | None
+    hit_class: np.ndarray
+    geom_id: np.ndarray
+
+
+def as_float32_ranges(range_m: np.ndarray) -> np.ndarray:
+    """Ranges rounded to float32, as a LaserScan carries them (float64 array)."""
+    return np.asarray(range_m, dtype=np.float32).astype(np.float64)
+
+
+class SimulatedLidar:
+    """A simulated 2D LiDAR in a scan scene.
+
+    Args:
+      scene: the compiled scene (the sensor's pose is ``scene.T_base_lidar``).
+      lidar: the sensor.
+      beam_angles_rad: (n_beams,) the beam angles to cast (the raw record's grid).
+      model: the sensor model, or None for the ideal sensor.
+      backend: ray-casting backend (default MuJoCo's).
+      nthread: casting threads of the default backend.
+    """
+
+    kind = "simulated"
+
+    def __init__(self, scene: Scene, lidar: LidarSpec, beam_angles_rad: np.ndarray, *,
+                 model: SensorModel | None = None, backend: Backend | None = None,
+                 nthread: int | None = None):
+        self.scene = scene
+        self.lidar = lidar
+        self.model = model
+        self.beam_angles_rad = np.asarray(beam_angles_rad, dtype=np.float64)
+        T = scene.T_base_lidar
+        R = T[:3, :3]
+        origin = T[:3, 3] + casting.AXIS_TRAP_OFFSET_M * R[:, 2]
+        n_beams = len(self.beam_angles_rad)
+        if model is None:
+            self.n_sub = 1
+            origins = np.broadcast_to(origin, (n_beams, 3))
+            dirs = beam_dirs_lidar(self.beam_angles_rad) @ R.T
+        else:
+            self.pattern = subray_pattern(model.footprint_rings)
+            self.n_sub = self.pattern.n_subrays
+            origins_lidar, dirs_lidar = subrays_lidar(
+                self.beam_angles_rad, self.pattern, divergence_rad=lidar.beam_divergence_rad,
+                exit_diameter_m=lidar.beam_exit_diameter_m)
+            origins = (origins_lidar @ R.T + origin).reshape(-1, 3)
+            dirs = (dirs_lidar @ R.T).reshape(-1, 3)
+            # The axis sub-ray exactly as the ideal sensor casts it.
+            origins[:: self.n_sub] = origin
+            dirs[:: self.n_sub] = beam_dirs_lidar(self.beam_angles_rad) @ R.T
+            self.adaptive = model.adaptive_footprint and self.n_sub > 1
+            self.reflectance = model.reflectance_by_class()
+        self.caster = Caster(scene, origins, dirs, backend=backend, nthread=nthread)
+        self.n_refined = 0
+
+    @property
+    def ideal(self) -> bool:
+        return self.model is None
+
+    def describe(self) -> dict:
+        """What this sensor simulates, for the sidecar."""
+        out = {"kind": "simulated", "model": self.lidar.name,
+               "sensor": "ideal" if self.ideal else "realistic",
+               "ray_caster": self.caster.backend.name}
+        if self.ideal:
+            out["effects"] = "none: one geometric ray per beam, exact first hit, range limits"
+        else:
+            m = self.model
+            out["effects"] = {
+                "footprint_subrays": self.n_sub, "adaptive_footprint": bool(self.adaptive),
+                "range_noise": m.range_noise, "quantise": m.quantise, "intensity": m.intensity,
+                "dropouts": m.dropouts}
+        return out
+
+    def cast_lines(self, table_rad: np.ndarray, rng: np.random.Generator, *,
+                   progress: Progress | None = None) -> Lines:
+        """The sensor's report for lines cast at true turntable angles.
+
+        Args:
+          table_rad: (n_lines,) one angle per line (the table at rest), or
+            (n_lines, n_beams) one per beam, float64 radians.
+          rng: the run's generator (the sensor model's only source of randomness).
+          progress: called with (lines done, lines total).
+        """
+        theta = np.asarray(table_rad, dtype=np.float64)
+        n_lines, n_beams = len(theta), len(self.beam_angles_rad)
+        if self.ideal:
+            ids = np.broadcast_to(np.arange(n_beams), (n_lines, n_beams))
+            hits = self.caster.cast(ids, theta, progress=progress)
+            range_m, status = gate_ranges(hits.dist_m, self.lidar)
+            geom = hits.geom_id
+            intensity = None
+        else:
+            fp, geom = self._footprints(theta, progress)
+            range_m, status, intensity = apply_sensor(fp.range_m, fp.power, fp.cos_incidence,
+                                                      fp.spread_m, self.lidar, self.model, rng)
+            too_near = int((status == BeamStatus.TOO_NEAR).sum())
+            if too_near > (status == BeamStatus.OK).sum():
+                log.warning("%d beams returned nearer than %s's range_min_m (%g m), more than gave a "
+                            "range: move the sensor back ([rig] lidar_distance_m = %g m now)", too_near,
+                            self.lidar.name, self.lidar.range_min_m, self.scene.rig.lidar_distance_m)
+        return Lines(range_m=as_float32_ranges(range_m), status=status, intensity=intensity,
+                     hit_class=self.scene.geom_class[geom], geom_id=geom)
+
+    # --- the footprint --------------------------------------------------------
+
+    def _combine(self, dist, geom, normal, dirs, weights):
+        cos = np.abs(np.einsum("...k,...k->...", normal, dirs))
+        refl = self.reflectance[self.scene.geom_class[geom]]
+        ret = combine_footprint(dist, cos, refl, weights, range_max_m=self.lidar.range_max_m)
+        dom = np.maximum(ret.dominant, 0)
+        geom_dom = np.where(ret.dominant >= 0,
+                            np.take_along_axis(geom, dom[..., None], axis=-1)[..., 0], -1)
+        return ret, geom_dom
+
+    def _footprints(self, theta: np.ndarray, progress: Progress | None):
+        """Combined footprint returns per beam: (FootprintReturn of (n_lines, n_beams), geom)."""
+        n_lines, n_beams, S = len(theta), len(self.beam_angles_rad), self.n_sub
+        per_beam = theta if theta.ndim == 2 else np.broadcast_to(theta[:, None], (n_lines, n_beams))
+        pattern = self.pattern
+        probe = pattern.probe if self.adaptive else np.arange(S)
+        rest = np.setdiff1d(np.arange(S), probe)
+        beam_ids = np.arange(n_beams)[:, None] * S
+        probe_ids = (beam_ids + probe[None, :]).reshape(-1)  # (n_beams * n_probe,)
+        origins = self.caster.origins_base.reshape(n_beams, S, 3)
+        dirs = self.caster.dirs_base.reshape(n_beams, S, 3)
+        keys = ("range_m", "power", "cos_incidence", "spread_m")
+        out = {k: np.full((n_lines, n_beams), np.nan) for k in keys}
+        geom_out = np.full((n_lines, n_beams), -1, dtype=np.int32)
+        self.n_refined = 0
+        chunk = 64
+        for lo in range(0, n_lines, chunk):
+            hi = min(lo + chunk, n_lines)
+            c = hi - lo
+            th = np.repeat(per_beam[lo:hi], len(probe), axis=1)
+            hits = self.caster.cast(np.broadcast_to(probe_ids, (c, len(probe_ids))), th, normals=True)
+            d = hits.dist_m.reshape(c, n_beams, len(probe))
+            g = hits.geom_id.reshape(c, n_beams, len(probe))
+            nrm = hits.normal_base.reshape(c, n_beams, len(probe), 3)
+            if self.adaptive:
+                hit = origins[None, :, probe] + np.maximum(d, 0)[..., None] * dirs[None, :, probe]
+                refine = ~coplanar_probes(hit, nrm, g, tolerance_m=self.model.flat_tolerance_m)
+                # Flat footprints: the axis ray stands for the whole footprint.
+                ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1],
+                                              dirs[None, :, :1], np.ones(1))
+            else:
+                refine = np.zeros((c, n_beams), dtype=bool)
+                ret, geom_dom = self._combine(d, g, nrm, dirs[None], pattern.weights)
+            for k in keys:
+                out[k][lo:hi] = getattr(ret, k)
+            geom_out[lo:hi] = geom_dom
+            if refine.any():
+                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest)
+            if progress is not None:
+                progress(hi, n_lines)
+        from plantsim.sensor.footprint import FootprintReturn
+
+        log.debug("footprint: %d of %d beams refined with %d sub-rays", self.n_refined,
+                  n_lines * n_beams, S)
+        return FootprintReturn(dominant=None, **out), geom_out
+
+    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest):
+        """Casts the other sub-rays of the flagged beams and combines all of them."""
+        S = self.n_sub
+        line_of, beam_of = np.nonzero(refine)
+        self.n_refined += len(line_of)
+        counts = refine.sum(axis=1)
+        m = int(counts.max())
+        starts = np.cumsum(counts) - counts
+        pos = np.arange(len(line_of)) - np.repeat(starts, counts)
+        c, n_rest = refine.shape[0], len(rest)
+        ids = np.full((c, m, n_rest), self.caster.pad_id, dtype=np.int64)
+        ids[line_of, pos] = beam_of[:, None] * S + rest[None, :]
+        th = np.zeros((c, m, n_rest))
+        th[line_of, pos] = theta[line_of, beam_of][:, None]
+        hits = self.caster.cast(ids.reshape(c, m * n_rest), th.reshape(c, m * n_rest), normals=True)
+        d2 = hits.dist_m.reshape(c, m, n_rest)[line_of, pos]
+        g2 = hits.geom_id.reshape(c, m, n_rest)[line_of, pos]
+        n2 = hits.normal_base.reshape(c, m, n_rest, 3)[line_of, pos]
+        k = len(line_of)
+        dist = np.empty((k, S))
+        geom = np.empty((k, S), dtype=np.int32)
+        normal = np.empty((k, S, 3))
+        dist[:, probe], geom[:, probe], normal[:, probe] = d[line_of, beam_of], g[line_of, beam_of], \
+            nrm[line_of, beam_of]
+        dist[:, rest], geom[:, rest], normal[:, rest] = d2, g2, n2
+        dirs = self.caster.dirs_base.reshape(-1, S, 3)[beam_of]
+        ret, geom_dom = self._combine(dist, geom, normal, dirs, self.pattern.weights)
+        rows = lo + line_of
+        for key in ("range_m", "power", "cos_incidence", "spread_m"):
+            out[key][rows, beam_of] = getattr(ret, key)
+        geom_out[rows, beam_of] = geom_dom
