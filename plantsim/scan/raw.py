@@ -30,6 +30,7 @@ import numpy as np
 
 from plantsim.rig.scene import HitClass
 from plantsim.sensor.spec import BeamStatus, LidarSpec
+from plantsim.timestamps import ns_to_s, s_to_ns  # noqa: F401 (part of this module's surface)
 from plantsim.transforms import T_from_translation_quat_xyzw, translation_quat_xyzw
 
 # How the reconstruction knows the turntable angle of a beam.
@@ -80,16 +81,6 @@ class BeamGrid:
     def beam_offsets_s(self) -> np.ndarray:
         """(n_beams,) float64: each beam's time after the line's first beam, s."""
         return self.time_increment_s * np.arange(self.n_beams)
-
-
-def ns_to_s(ns: np.ndarray) -> np.ndarray:
-    """Integer nanoseconds to float64 seconds (the one conversion used everywhere)."""
-    return np.asarray(ns, dtype=np.int64) / 1e9
-
-
-def s_to_ns(seconds: np.ndarray) -> np.ndarray:
-    """Float seconds to integer nanoseconds (rounded)."""
-    return np.round(np.asarray(seconds, dtype=np.float64) * 1e9).astype(np.int64)
 
 
 def lidar_pose_of(T_base_lidar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

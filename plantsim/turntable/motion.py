@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from plantsim.errors import SimulationError
+from plantsim.timestamps import ns_to_s, s_to_ns
 from plantsim.turntable import encoder as encoder_mod
 from plantsim.turntable.dynamics import DynamicScene, Trajectory, TurntableDynamics, TurntableSim
 from plantsim.turntable.encoder import EncoderConfig, EncoderReadings
@@ -100,14 +101,10 @@ def _omega(rpm: float) -> float:
 
 def _quantised(readings: EncoderReadings) -> EncoderReadings:
     """Readings with whole-nanosecond time stamps (as a JointState carries them)."""
-    from plantsim.scan.raw import ns_to_s, s_to_ns
-
     return EncoderReadings(time_s=ns_to_s(s_to_ns(readings.time_s)), angle_rad=readings.angle_rad)
 
 
 def _stamps_ns(line_t0_s: np.ndarray, timing: LineTiming) -> np.ndarray:
-    from plantsim.scan.raw import s_to_ns
-
     return s_to_ns(np.asarray(line_t0_s) + timing.first_beam_s)
 
 
@@ -118,8 +115,6 @@ def kinematic_step(angles_rad: np.ndarray, step_time_s: float, timing: LineTimin
     The host reads the encoder at its read rate while the line is taken (and at
     the line's last beam), so that readings never straddle a move.
     """
-    from plantsim.scan.raw import ns_to_s
-
     angles = np.asarray(angles_rad, dtype=np.float64)
     stamps = _stamps_ns(step_time_s * np.arange(len(angles)), timing)
     span = timing.last_beam_s
