@@ -22,14 +22,12 @@ import numpy as np
 
 from plantsim.plant.mesh import load_plant
 from plantsim.rig.geometry import RigGeometry
-from plantsim.sensor.casting import RayCaster
 from plantsim.scan.schedule import StepScan
-from plantsim.scan.pipeline import step_and_shoot
 from plantsim.rig.scene import build_scene
 from plantsim.sensor.spec import lidar_preset
-from plantsim.sensor.casting import FootprintCaster
+from plantsim.scan.raw import BeamGrid
+from plantsim.sensor.lidar import SimulatedLidar
 from plantsim.sensor.model import SensorModel
-from plantsim.scan.pipeline import realistic_step_and_shoot
 
 
 def median_time(fn, runs: int) -> tuple[float, float, object]:
@@ -65,11 +63,12 @@ def main() -> None:
           f"{args.threads or os.cpu_count()} threads; median of {args.runs} runs")
     print(f"{'case':44s} {'wall s':>7s} {'cpu s':>7s} {'rays':>11s} {'refined':>9s} {'points':>8s}")
 
-    caster = RayCaster(scene, lidar, nthread=args.threads)
-    med, cpu, raw = median_time(lambda: step_and_shoot(scene, lidar, schedule, caster=caster),
-                                 args.runs)
+    angles = BeamGrid.of(lidar).beam_angles_rad()
+    ideal = SimulatedLidar(scene, lidar, angles, nthread=args.threads)
+    med, cpu, lines = median_time(lambda: ideal.cast_lines(schedule.angles_rad(), np.random.default_rng(0)),
+                                  args.runs)
     print(f"{'ideal (--ideal: one ray, no model)':44s} {med:7.3f} {cpu:7.3f} {n_beams:11,d} "
-          f"{'-':>9s} {raw.counts()['returns']:8,d}")
+          f"{'-':>9s} {(lines.status == 0).sum():8,d}")
     ideal_s = med
 
     cases = [("model, 1 ray per beam (footprint_rings=0)", SensorModel(footprint_rings=0)),
@@ -77,12 +76,15 @@ def main() -> None:
              ("model, 37 sub-rays, adaptive", SensorModel(footprint_rings=3)),
              ("model, 19 sub-rays, every sub-ray cast", SensorModel(adaptive_footprint=False))]
     for label, model in cases:
-        fc = FootprintCaster(scene, lidar, model, nthread=args.threads)
-        med, cpu, raw = median_time(
-            lambda: realistic_step_and_shoot(scene, lidar, schedule, model,
-                                             rng=np.random.default_rng(0), caster=fc), args.runs)
-        print(f"{label:44s} {med:7.3f} {cpu:7.3f} {fc.n_rays:11,d} {fc.n_refined:9,d} "
-              f"{raw.counts()['returns']:8,d}")
+        source = SimulatedLidar(scene, lidar, angles, model=model, nthread=args.threads)
+
+        def cast(source=source):
+            source.caster.n_rays_cast = 0
+            return source.cast_lines(schedule.angles_rad(), np.random.default_rng(0))
+
+        med, cpu, lines = median_time(cast, args.runs)
+        print(f"{label:44s} {med:7.3f} {cpu:7.3f} {source.caster.n_rays_cast:11,d} {source.n_refined:9,d} "
+              f"{(lines.status == 0).sum():8,d}")
         if model == SensorModel():
             default_s, default_cpu = med, cpu
     print(f"cost of realism (default footprint): {default_s:.2f} s vs {ideal_s:.2f} s ideal "

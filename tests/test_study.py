@@ -7,8 +7,9 @@ import pytest
 import trimesh
 
 from plantsim.evaluation import study
-from plantsim.cli.app import main
 from plantsim.scan.config import config_from_dict
+from plantsim.scan.plan import plan_scan
+from plantsim.cli.app import main
 
 
 # --------------------------------------------------------------------------
@@ -93,7 +94,7 @@ def test_config_data_builds_valid_configurations():
 def test_sweep_validation_names_the_problem():
     with pytest.raises(ValueError, match=r"plants must name at least one plant, got none"):
         study.Sweep(plants=())
-    with pytest.raises(ValueError, match=r"unknown setting 'step' in grid; valid settings: step_deg, n_beams"):
+    with pytest.raises(ValueError, match=r"unknown setting 'step' in grid; valid settings: mode, step_deg, n_beams"):
         study.Sweep(plants=("maize",), grid=(("step", (1.0,)),))
     with pytest.raises(ValueError, match=r"setting 'rpm' has no values to try"):
         study.Sweep(plants=("maize",), grid=(("rpm", ()),))
@@ -208,3 +209,22 @@ def test_cli_study_bad_input_is_one_line(tmp_path, capsys):
     assert main(["study", "-o", str(tmp_path / "nope" / "s.csv")]) == 2
     assert "output folder does not exist" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_a_sweep_over_modes_blanks_what_a_mode_does_not_use():
+    sweep = study.Sweep(plants=("maize",), grid=(("mode", ("step", "continuous")), ("step_deg", (2.0, 1.0)),
+                                                 ("rpm", (1.0,))))
+    runs = sweep.runs()
+    assert {"plant": "maize", "mode": "continuous", "step_deg": None, "rpm": 1.0, "ideal": False} in runs
+    assert {"plant": "maize", "mode": "step", "step_deg": 1.0, "rpm": None, "ideal": False} in runs
+    assert len(runs) == 3  # two step runs, one continuous run (not repeated per step)
+    for run in runs:  # every run's configuration passes the pipeline's checks
+        plan_scan(config_from_dict(sweep.config_data(run)))
+
+
+def test_study_rows_say_what_was_simulated(monkeypatch):
+    row = study.run_one({"plant": "maize", "mode": "continuous", "rpm": 5.0, "ideal": True},
+                        {"turntable": {"mode": "continuous", "rpm": 5.0}, "scan": {"sweep_deg": 20.0},
+                         "ideal": True, "threads": 1})
+    assert row["error"] == "" and row["sensor"] == "ideal" and row["turntable_motion"] == "kinematic"
+    assert row["mode"] == "continuous" and row["angle_mode"] == "interpolate"

@@ -5,7 +5,8 @@
     plantsim study --plant maize --step-deg 4 2 1 0.5 0.25 --ideal-and-realistic \\
         -o docs/error_vs_runtime_maize.csv
     plantsim study --plant maize --plant wheat --step-deg 1 --footprint-rings 0 1 2
-    plantsim study --plant maize --mode continuous --rpm 0.5 1 2 --step-deg 1
+    plantsim study --plant maize --mode continuous --rpm 0.5 1 2
+    plantsim study --plant maize --mode step continuous --step-deg 2 1 --rpm 1 --ideal-and-realistic
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ def _study_overrides(args: argparse.Namespace) -> dict:
     out: dict = {}
     if args.lidar:
         out["lidar"] = {"preset": args.lidar}
-    turntable = {k: v for k, v in (("mode", args.mode), ("physics", args.physics)) if v}
+    mode = args.mode[0] if args.mode and len(args.mode) == 1 else None
+    turntable = {k: v for k, v in (("mode", mode), ("physics", args.physics)) if v}
     if turntable:
         out["turntable"] = turntable
     plant = {k: v for k, v in (("units", args.units), ("up", args.up)) if v}
@@ -52,7 +54,7 @@ def cmd_study(args: argparse.Namespace) -> int:
 
     base = merge(load_toml(args.config) if args.config else {}, _study_overrides(args))
     grid = [(name, tuple(values)) for name, values in (
-        ("step_deg", args.step_deg), ("n_beams", args.n_beams),
+        ("mode", args.mode if args.mode and len(args.mode) > 1 else None), ("step_deg", args.step_deg), ("n_beams", args.n_beams),
         ("footprint_rings", args.footprint_rings), ("timestep_s", args.timestep_s),
         ("rpm", args.rpm), ("seed", args.seed),
         ("ideal", (True, False) if args.ideal_and_realistic else None)) if values]
@@ -111,7 +113,9 @@ def add_study_command(subparsers: argparse._SubParsersAction) -> argparse.Argume
     fixed = study.add_argument_group("fixed settings")
     fixed.add_argument("--config", help="TOML file with the fixed options (as for plantsim scan)")
     fixed.add_argument("--lidar", choices=sorted(PRESETS), help="sensor preset (default urg-04lx-ug01)")
-    fixed.add_argument("--mode", choices=["step", "continuous"], help="turntable mode (default step)")
+    fixed.add_argument("--mode", choices=["step", "continuous"], nargs="+",
+                       help="turntable mode (default step); both (--mode step continuous) sweeps it: "
+                            "--step-deg then applies to the step runs and --rpm to the continuous runs")
     fixed.add_argument("--physics", choices=["auto", "kinematic", "dynamic"], help="turntable physics")
     fixed.add_argument("--units", choices=["m", "cm", "mm"], help="mesh files' unit (default m)")
     fixed.add_argument("--up", choices=["x", "y", "z"], help="mesh files' up axis (default z)")

@@ -66,12 +66,15 @@ class Setting:
         overrides: value, base configuration -> configuration overrides (TOML layout).
         sensor_only: it changes only the realistic sensor model (an ideal run
             ignores it, so the sweep does not repeat ideal runs for it).
+        mode_only: "step" or "continuous" when it applies to that scan mode only
+            (blank in the other mode's runs, which are not repeated for it).
     """
 
     name: str
     help: str
     overrides: Callable[[Any, Mapping[str, Any]], dict]
     sensor_only: bool = False
+    mode_only: str | None = None
 
 
 def _at(section: str, key: str) -> Callable[[Any, Mapping[str, Any]], dict]:
@@ -79,14 +82,16 @@ def _at(section: str, key: str) -> Callable[[Any, Mapping[str, Any]], dict]:
 
 
 SETTINGS: dict[str, Setting] = {s.name: s for s in (
-    Setting("step_deg", "turntable step between scan lines, degrees", _at("scan", "step_deg")),
+    Setting("mode", "scan mode: step (move, settle, take a line) or continuous (the table turns)",
+            _at("turntable", "mode")),
+    Setting("step_deg", "turntable step between scan lines, degrees", _at("scan", "step_deg"), mode_only="step"),
     Setting("n_beams", "beams per scan line over the preset's field of view", _n_beams),
     Setting("footprint_rings", "rings of sub-rays across a beam's footprint (0: 1 ray, 1: 7, 2: 19)",
             _at("sensor_model", "footprint_rings"), sensor_only=True),
     Setting("timestep_s", "physics timestep of the turntable's servo, seconds (dynamic scans)",
             _at("turntable", "timestep_s")),
     Setting("rpm", "turntable speed of a continuous scan, revolutions per minute",
-            _at("turntable", "rpm")),
+            _at("turntable", "rpm"), mode_only="continuous"),
     Setting("ideal", "perfect geometry (true) or the realistic sensor (false)",
             lambda value, base: {"ideal": bool(value)}),
     Setting("seed", "seed of the run's randomness", lambda value, base: {"seed": int(value)}),
@@ -137,10 +142,11 @@ class Sweep:
         if len(set(names)) != len(names):
             raise ValueError(f"grid names a setting twice: {names}")
         turntable = self.base.get("turntable", {})
-        if "rpm" in names and turntable.get("mode", "step") != "continuous":
+        modes = set(dict(self.grid).get("mode", (turntable.get("mode", "step"),)))
+        if "rpm" in names and "continuous" not in modes:
             raise ValueError("rpm applies to continuous scans only; set turntable mode = \"continuous\" "
                              "(plantsim study --mode continuous)")
-        if "timestep_s" in names and turntable.get("mode", "step") != "continuous" \
+        if "timestep_s" in names and "continuous" not in modes \
                 and turntable.get("physics", "auto") != "dynamic":
             raise ValueError("timestep_s applies to scans with the servo's physics only; use "
                              "--mode continuous or --physics dynamic")
@@ -165,6 +171,8 @@ class Sweep:
                 run.setdefault("ideal", bool(self.base.get("ideal", False)))
                 if run["ideal"]:
                     run.update({n: None for n in names if SETTINGS[n].sensor_only})
+                mode = run.get("mode") or self.base.get("turntable", {}).get("mode", "step")
+                run.update({n: None for n in names if SETTINGS[n].mode_only not in (None, mode)})
                 key = tuple(sorted((k, repr(v)) for k, v in run.items()))
                 if key not in seen:
                     seen.add(key)
@@ -186,7 +194,7 @@ class Sweep:
 # --------------------------------------------------------------------------
 METRIC_COLUMNS = ("median", "p95", "p99", "max", "mean", "rms", "mesh_to_cloud_mean",
                   "mesh_to_cloud_p95", "chamfer", "coverage")
-SCAN_PHASES = ("load_mesh", "build_scene", "scan", "reconstruct")
+SCAN_PHASES = ("load_mesh", "build_scene", "turntable", "scan", "reconstruct")
 
 
 def run_one(run: Mapping[str, Any], config_data: Mapping[str, Any],
@@ -208,7 +216,10 @@ def run_one(run: Mapping[str, Any], config_data: Mapping[str, Any],
         logger.warning("run %s failed: %s", dict(run), exc)
         row["error"] = f"{type(exc).__name__}: {exc}"
         return row
+    plan = result.plan
     row.update({
+        # What was actually simulated, part by part (not what the settings might suggest).
+        "sensor": plan.sensor, "turntable_motion": plan.motion, "mode": plan.mode, "angle_mode": plan.angle_mode,
         "wall_time_s": sum(result.timings_s.get(k, 0.0) for k in SCAN_PHASES),
         "cpu_time_s": cpu_scan,
         "simulated_rig_time_s": simulated_rig_time_s(result),
