@@ -27,14 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from plantsim.turntable.options import TurntableOptions
-from plantsim.turntable.motion import continuous_scan
-from plantsim.turntable.dynamics import JitterConfig, TurntableDynamics, build_dynamic_scene
+from plantsim.scan.config import RunConfig
+from plantsim.scan.pipeline import run_scan
+from plantsim.scan.schedule import StepScan
+from plantsim.turntable.dynamics import JitterConfig, TurntableDynamics
 from plantsim.turntable.encoder import EncoderConfig
 from plantsim.errors import SimulationError
 from plantsim.plant.mesh import load_plant
 from plantsim.evaluation.metrics import MeshProximity
 from plantsim.cloud.reconstruct import reconstruct
-from plantsim.rig.geometry import RigGeometry
 from plantsim.sensor.spec import PRESETS
 
 LIDAR = PRESETS["urg-04lx-ug01"]
@@ -52,8 +53,10 @@ class Study:
 
     def error(self, options: TurntableOptions) -> dict:
         try:
-            ds = build_dynamic_scene(RigGeometry(), self.plant, options.dynamics)
-            result = continuous_scan(ds, LIDAR, self.sweep_deg, options, np.random.default_rng(self.seed))
+            # The ideal sensor: these rows isolate what the turntable does to the cloud.
+            config = RunConfig(sensor="ideal", seed=self.seed, scan=StepScan(sweep_deg=self.sweep_deg),
+                               turntable=options.replace(physics="dynamic"))
+            result = run_scan(config, plant=self.plant)
         except (SimulationError, ValueError) as exc:
             return {"points": 0, "rms_mm": math.nan, "p95_mm": math.nan, "max_mm": math.nan,
                     "status": str(exc).split(";")[0]}
@@ -94,8 +97,7 @@ def encoder_rows(study: Study, rpm: float):
     }
     for name, (unit, values, make) in series.items():
         for value in values:
-            options = TurntableOptions(mode="continuous", rpm=rpm, encoder=make(value)).effective(False)
-            options = options.replace(dynamics=TurntableDynamics())
+            options = TurntableOptions(mode="continuous", rpm=rpm, encoder=make(value))
             yield {"study": "encoder", "series": name, "value": value, "unit": unit, "rpm": rpm,
                    "deskew": True, **study.error(options)}
 
