@@ -93,3 +93,30 @@ def test_unreachable_servo_and_real_lidar_give_clear_errors(tmp_path, emulator, 
     assert cli.main(scan_args(emulator, cylinder, out, "--lidar", "urg")) == 2
     assert "real URG LiDAR is not available in rig scans yet" in capsys.readouterr().err
     assert not (tmp_path / "plant.ply.journal").exists()
+
+
+def test_rig_scan_writes_the_raw_bag_and_reconstruct_rebuilds_the_cloud(tmp_path, emulator, cylinder, capsys):
+    from plantsim.cloud.bag import read_raw
+
+    out, bag, again = tmp_path / "plant.las", tmp_path / "raw", tmp_path / "again.las"
+    assert cli.main(scan_args(emulator, cylinder, out, "--raw", str(bag), "--seed", "4")) == 0, \
+        capsys.readouterr().err
+    raw, info = read_raw(bag)
+    assert raw.n_lines == 12 and raw.intensity is not None and raw.angle_mode == "line"
+    assert info["simulated"]["turntable"]["motion"] == "hardware"
+    # The encoder log of a rig step scan is the servo's reported angle of each line.
+    assert len(raw.encoder_angle_rad) == 12
+    assert cli.main(["reconstruct", str(bag), "-o", str(again)]) == 0
+    assert out.read_bytes() == again.read_bytes()
+
+
+def test_rig_scan_refuses_settings_of_the_simulated_turntable_before_moving(tmp_path, emulator, cylinder, capsys):
+    config = tmp_path / "rig.toml"
+    config.write_text("[turntable.jitter]\nbacklash_deg = 0.5\n")
+    out = tmp_path / "plant.las"
+    assert cli.main(scan_args(emulator, cylinder, out, "--config", str(config))) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "[turntable.jitter] backlash_deg describes the simulated turntable" in err[0]
+    assert not out.exists() and not (tmp_path / "plant.las.journal").exists()
+    with emulator.lock:
+        assert emulator.servo(1).shaft.position == 0.0  # it never moved
