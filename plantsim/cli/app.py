@@ -79,19 +79,19 @@ def resolve_config(args: argparse.Namespace, overrides: dict):
 
 
 def cmd_scan(args: argparse.Namespace) -> int:
-    from plantsim.cloud.export import check_output_path
     from plantsim.scan.plan import plan_scan
-    from plantsim.scan.pipeline import run_scan, write_result
+    from plantsim.scan.pipeline import check_outputs, check_plant_seen, run_scan, write_result
 
     t0 = time.perf_counter()
     config = resolve_config(args, scan_overrides(args))
-    check_output_path(config.output.path)  # Fail before any work, not after it.
+    check_outputs(config, config_path=args.config)  # Fail before any work, not after it.
     plan_scan(config)
     progress, close = _progress_bar("scan")
     try:
         result = run_scan(config, progress=progress)
     finally:
         close()
+    check_plant_seen(result)
     if args.evaluate:
         from plantsim.scan.pipeline import with_evaluation
 
