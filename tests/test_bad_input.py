@@ -59,7 +59,7 @@ CLI_CASES = [
     ("empty mesh", {}, ["scan", "empty.stl"], "is empty"),
     ("garbage mesh", {}, ["scan", "garbage.stl"], "header says"),
     ("truncated binary stl", {}, ["scan", "short.stl"],
-     "binary STL whose header says 1,000 triangles, but the file holds 12.0"),
+     "as a binary STL its header says 1,000 triangles while the file holds 12.0 (684 bytes)"),
     ("nan vertices", {}, ["scan", "nan.obj"], "1 of 4 vertices are NaN or infinite"),
     ("face index out of range", {}, ["scan", "badface.obj"], "badface.obj"),
     ("ascii stl without facets", {}, ["scan", "ascii_empty.stl"], "ascii_empty.stl"),
