@@ -159,6 +159,7 @@ def write_bag(path: Path, raw: RawScan, *, metadata: dict | None = None) -> None
         truth_c = conn(TRUTH_TOPIC, BEAM_TRUTH_TYPE) if raw.true_turntable_angle_rad is not None else None
 
         info = {"plantsim_raw": 1, "angle_mode": raw.angle_mode, "start_unix_ns": start,
+                "encoder_offset_rad": float(raw.encoder_offset_rad),
                 "commanded_rad": [None if not np.isfinite(a) else float(a) for a in raw.commanded_rad],
                 **(metadata or {})}
         messages = [(start, info_c, t["std_msgs/msg/String"](data=json.dumps(info)), "std_msgs/msg/String")]
@@ -279,5 +280,5 @@ def read_raw(path: str | os.PathLike) -> tuple[RawScan, dict]:
         if has_truth else None,
         hit_class=np.stack([np.asarray(m.hit_class, dtype=np.uint8) for m in truth]) if has_truth else None,
         geom_id=np.stack([np.asarray(m.geom_id, dtype=np.int32) for m in truth]) if has_truth else None,
-        start_unix_ns=start)
+        start_unix_ns=start, encoder_offset_rad=float(info.get("encoder_offset_rad", 0.0)))
     return raw, info

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import logging
 import os
 import platform
@@ -102,8 +103,13 @@ def load_configured_plant(config: RunConfig) -> PlantMesh:
     options = config.plant
     path = options.mesh if options.mesh else bundled_plant_path(options.bundled)
     T = None if options.T_turntable_mesh is None else np.array(options.T_turntable_mesh)
-    return load_plant(path, units=options.units, up=options.up, placement=options.placement,
-                      T_turntable_mesh=T)
+    placement = options.placement
+    if not options.mesh and options.bundled == "calibration-target" and "plant.placement" not in config.explicit \
+            and placement == "base":
+        # The target stands where it is built (plantsim.plant.target); "base" would centre its
+        # footprint, fin and all, and move the drum off the axis.
+        placement = "none"
+    return load_plant(path, units=options.units, up=options.up, placement=placement, T_turntable_mesh=T)
 
 
 def journal_path_for(output: str | os.PathLike) -> Path:
@@ -208,7 +214,8 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
         record = _motion(config, plan, dscene, grid, rng)
         timings["turntable"] = time.perf_counter() - t
         t = time.perf_counter()
-        raw = simulate_lines(source, record, grid, plan.angle_mode, rng, progress=progress)
+        raw = simulate_lines(source, record, grid, plan.angle_mode, rng, progress=progress,
+                             encoder_offset_rad=math.radians(config.rig.encoder_offset_deg))
         diagnostics = motions.physics_diagnostics(record, raw.time_s, raw.true_turntable_angle_rad,
                                                   raw.turntable_angle_rad)
     else:
@@ -222,6 +229,7 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
                                    first_beam_s=float(config.lidar.beam_time_offsets_s()[0]),
                                    identity=scan_identity(config, plant, turntable, source),
                                    angle_mode=plan.angle_mode, resume=resume, settle_s=settle_s,
+                                   encoder_offset_rad=math.radians(config.rig.encoder_offset_deg),
                                    progress=progress)
         lines_resumed = journal.lines_resumed
         error = raw.encoder_angle_rad - raw.commanded_rad
@@ -236,8 +244,14 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
 
 
 def simulate_lines(source: SimulatedLidar, record: motions.MotionRecord, grid: BeamGrid, angle_mode: str,
-                   rng: np.random.Generator, *, progress: Progress | None = None) -> RawScan:
+                   rng: np.random.Generator, *, progress: Progress | None = None,
+                   encoder_offset_rad: float = 0.0) -> RawScan:
     """The simulated LiDAR takes every line of a simulated motion, each beam at its own true angle.
+
+    Args:
+      encoder_offset_rad: what the simulated encoder reads at turntable angle 0
+        (added to its readings and the commanded angles; the reconstruction
+        subtracts it again).
 
     Returns:
       The raw record (ground truth included).
@@ -249,7 +263,8 @@ def simulate_lines(source: SimulatedLidar, record: motions.MotionRecord, grid: B
     return RawScan(grid=grid, line_stamp_ns=record.line_stamp_ns, range_m=lines.range_m,
                    status=lines.status, intensity=lines.intensity,
                    encoder_stamp_ns=np.round(record.readings.time_s * 1e9).astype(np.int64),
-                   encoder_angle_rad=record.readings.angle_rad, commanded_rad=record.commanded_rad,
+                   encoder_angle_rad=record.readings.angle_rad + encoder_offset_rad,
+                   commanded_rad=record.commanded_rad + encoder_offset_rad, encoder_offset_rad=encoder_offset_rad,
                    angle_mode=angle_mode, lidar_pose=lidar_pose_of(source.scene.T_base_lidar),
                    true_turntable_angle_rad=np.broadcast_to(
                        true_rad if true_rad.ndim == 2 else true_rad[:, None], shape).copy(),
