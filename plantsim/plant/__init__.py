@@ -1,1 +1,2 @@
-"""plantsim.plant."""
+"""The plant: mesh import and placement (:mod:`.mesh`), procedural plants with exact traits
+(:mod:`.procedural`) and the calibration target (:mod:`.target`)."""
