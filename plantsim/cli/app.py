@@ -141,7 +141,8 @@ def add_common_scan_options(parser: argparse.ArgumentParser, *, preset_flag: str
     parser.add_argument("--plant-only", action="store_true", help="write only points on the plant")
     parser.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
     parser.add_argument("--caster", choices=["mujoco", "embree", "auto"],
-                        help="ray caster: mujoco (default), embree (needs plantsim[fast]), auto")
+                        help="ray caster: auto (default: Embree when installed, else MuJoCo), embree, or mujoco "
+                             "(the reference: the same hits, slower)")
     parser.add_argument("--raw", metavar="DIR",
                         help="also write the raw record (every beam, encoder readings, rig geometry, "
                              "ground truth) as a ROS 2 bag (MCAP) in DIR")

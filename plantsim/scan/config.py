@@ -93,6 +93,12 @@ class RunConfig:
         :class:`plantsim.dynamic_scan.TurntableOptions`.
       sensor_model: the sensor imperfections and reflectances of a
         non-ideal run (``[sensor_model]``).
+      sensor: "realistic" (default) or "ideal": the LiDAR alone.
+      caster: the ray-casting backend: "auto" (Embree when installed, else
+        MuJoCo), "embree" or "mujoco" (the reference; same hits, slower).
+      explicit: dotted paths of the settings the user gave (filled by
+        :func:`config_from_dict`); the plan refuses given settings the chosen
+        parts would not use.
     """
 
     plant: PlantOptions = PlantOptions()
@@ -103,7 +109,7 @@ class RunConfig:
     seed: int = 0
     ideal: bool = False
     sensor: str = "realistic"
-    caster: str = "mujoco"
+    caster: str = "auto"
     threads: int | None = None
     turntable: TurntableOptions = TurntableOptions()
     sensor_model: SensorModel = SensorModel()

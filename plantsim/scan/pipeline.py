@@ -272,7 +272,8 @@ def simulate_lines(source: SimulatedLidar, record: motions.MotionRecord, grid: B
 
 
 def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, model: SensorModel | None = None,
-                   rng: np.random.Generator | None = None, progress: Progress | None = None) -> RawScan:
+                   rng: np.random.Generator | None = None, caster: str = "auto",
+                   progress: Progress | None = None) -> RawScan:
     """A step-and-shoot scan of a scene you built: a perfect turntable, the ideal or realistic sensor.
 
     The same parts as :func:`run_scan` with ``physics = "kinematic"`` (the table
@@ -285,6 +286,7 @@ def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, model:
       schedule: angles and timing.
       model: the sensor model, or None for the ideal sensor.
       rng: the generator of the sensor model's noise (default: seed 0).
+      caster: the ray-casting backend, as ``RunConfig.caster``.
       progress: called with (lines done, lines total).
     """
     if schedule.step_time_s < lidar.scan_period_s:
@@ -293,7 +295,7 @@ def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, model:
             f"({lidar.scan_period_s} s): one line must fit in one step")
     rng = np.random.default_rng(0) if rng is None else rng
     grid = BeamGrid.of(lidar)
-    source = SimulatedLidar(scene, lidar, grid.beam_angles_rad(), model=model)
+    source = SimulatedLidar(scene, lidar, grid.beam_angles_rad(), model=model, backend=make_backend(scene, caster))
     timing = motions.LineTiming(scan_period_s=lidar.scan_period_s,
                                 first_beam_s=float(lidar.beam_time_offsets_s()[0]),
                                 beam_offsets_s=grid.beam_offsets_s())

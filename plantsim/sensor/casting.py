@@ -122,10 +122,14 @@ class MujocoBackend:
         for name, hide in (("turning", ~turning), ("fixed", turning)):
             model = copy.deepcopy(scene.model)
             model.geom_group[hide] = _HIDDEN_GROUP
-            self._batches[name] = mujoco.batch.Batch(model, nsim=self.nsim, nthread=self.nthread)
+            self.replace_model(name, model)
         stat = scene.model.stat
         # Padding rays: from far above the scene going up; they miss every bounding box.
         self._pad_origin = np.asarray(stat.center) + (0.0, 0.0, 10.0 * max(stat.extent, 1.0))
+
+    def replace_model(self, which: str, model: mujoco.MjModel) -> None:
+        """Casts ``which`` ("turning" or "fixed") rays against this model copy (geoms to skip in group 5)."""
+        self._batches[which] = mujoco.batch.Batch(model, nsim=self.nsim, nthread=self.nthread)
 
     def _cast(self, which, origins, dirs, normals) -> Hits:
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
@@ -180,7 +184,7 @@ def make_backend(scene: Scene, name: str = "mujoco", *, nthread: int | None = No
         else:
             available = embree_available()
         if available:
-            return EmbreeBackend(scene)
+            return EmbreeBackend(scene, nthread=nthread)
         if name == "embree":
             raise ValueError("caster = \"embree\" needs the embreex package: pip install "
                              "'plantsim[fast]', or use caster = \"mujoco\"")

@@ -1,0 +1,85 @@
+"""The ray-casting backends agree hit for hit: MuJoCo (the reference) and Embree."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from plantsim.plant.mesh import load_plant, plant_from_arrays
+from plantsim.resources import bundled_plant_path
+from plantsim.rig.geometry import RigGeometry
+from plantsim.rig.scene import build_scene
+from plantsim.scan.raw import BeamGrid
+from plantsim.sensor import casting
+from plantsim.sensor.casting import MujocoBackend, make_backend
+from plantsim.sensor.lidar import SimulatedLidar
+from plantsim.sensor.model import SensorModel
+from plantsim.sensor.spec import URG_04LX_UG01
+
+embree = pytest.importorskip("plantsim.sensor.embree")
+if not embree.embree_available():
+    pytest.skip("embreex is not installed (pip install 'plantsim[fast]')", allow_module_level=True)
+
+ANGLES = BeamGrid.of(URG_04LX_UG01).beam_angles_rad()
+
+
+def both(scene, model=None, angles_deg=np.arange(0, 360, 7.0)):
+    out = {}
+    for name in ("mujoco", "embree"):
+        source = SimulatedLidar(scene, URG_04LX_UG01, ANGLES, model=model, backend=make_backend(scene, name))
+        assert source.caster.backend.name == name
+        out[name] = source.cast_lines(np.radians(angles_deg), np.random.default_rng(0))
+    return out["mujoco"], out["embree"]
+
+
+def shapes():
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.04)
+    sphere.apply_translation([0.03, -0.02, 0.12])
+    box = trimesh.creation.box(extents=[0.02, 0.05, 0.08])
+    box.apply_transform(trimesh.transformations.rotation_matrix(0.4, [0, 0, 1]))
+    box.apply_translation([-0.04, 0.03, 0.05])
+    cylinder = trimesh.creation.cylinder(radius=0.01, height=0.3, sections=32)
+    cylinder.apply_translation([0.0, 0.0, 0.15])  # on the axis: the axis-trap case
+    return trimesh.util.concatenate([sphere, box, cylinder])
+
+
+@pytest.mark.parametrize("which", ["shapes", "maize"])
+def test_ideal_lines_are_the_same_hit_for_hit(which):
+    if which == "shapes":
+        mesh = shapes()
+        plant = plant_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces), placement="none")
+    else:
+        plant = load_plant(bundled_plant_path("maize"))
+    a, b = both(build_scene(RigGeometry(), plant))
+    np.testing.assert_array_equal(a.geom_id, b.geom_id)
+    np.testing.assert_array_equal(a.status, b.status)
+    np.testing.assert_array_equal(a.range_m, b.range_m)  # float64 refinement, then the same float32 rounding
+    assert (a.hit_class == 1).sum() > 500
+
+
+def test_realistic_lines_agree_beam_for_beam():
+    a, b = both(build_scene(RigGeometry(), load_plant(bundled_plant_path("maize"))), model=SensorModel(),
+                angles_deg=np.arange(0, 360, 15.0))
+    np.testing.assert_array_equal(a.status, b.status)
+    np.testing.assert_array_equal(a.geom_id, b.geom_id)
+    ok = a.status == 0
+    # The same footprints and noise draws; only a 1 mm quantisation step can flip on a rounding.
+    assert np.abs(a.range_m[ok] - b.range_m[ok]).max() <= 0.001 + 1e-9
+    np.testing.assert_allclose(a.intensity[ok], b.intensity[ok], atol=1e-3)
+
+
+def test_a_scene_without_a_turning_mesh_falls_to_mujoco_alone():
+    scene = build_scene(RigGeometry())  # no plant: the disk is a primitive
+    a, b = both(scene)
+    np.testing.assert_array_equal(a.range_m, b.range_m)
+    np.testing.assert_array_equal(a.geom_id, b.geom_id)
+
+
+def test_asking_for_embree_without_it_says_how_to_install(monkeypatch):
+    monkeypatch.setattr(embree, "embree_available", lambda: False)
+    scene = build_scene(RigGeometry())
+    with pytest.raises(ValueError, match=r"caster = \"embree\" needs the embreex package"):
+        make_backend(scene, "embree")
+    assert isinstance(make_backend(scene, "auto"), MujocoBackend)
+    assert casting.BACKENDS == ("mujoco", "embree", "auto")
