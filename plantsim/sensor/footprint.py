@@ -24,13 +24,32 @@ power-weighted mean range):
     w_i = exp(-2 (rho_i / w0)^2) / sum(...)        (Gaussian TEM00 profile)
 
 with rho_i the sub-ray's offset radius in units of the 1/e^2 radius w0.
+
+Mixed pixels as a continuum. A phase sensor integrates the whole footprint,
+so as an edge crosses it the reported range moves continuously between the
+two surfaces. A fixed set of sub-rays turns that into steps: the range
+changes only when the edge passes a sub-ray. Two things undo the steps here:
+each ring is turned by the golden angle against the one inside it (so no two
+sub-rays share a projection on any axis of the pattern, and an edge crossing
+the footprint passes them one at a time: n_sub + 1 levels, not a few), and
+the whole pattern can be turned per beam, or per beam and line, by an angle
+drawn from the run's generator (:func:`pattern_rotations_rad`, the
+``rotation_rad`` of :func:`subrays_lidar`): over many beams the sub-rays
+sample the footprint's area uniformly, and the mixture fractions, hence the
+ranges, fill the interval between the surfaces.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
+
+# Each ring is turned by this against the ring inside it (the golden angle,
+# pi (3 - sqrt 5)): no two sub-rays of the pattern share an in-plane or an
+# out-of-plane offset, so an edge crossing the footprint passes them one by one.
+RING_TWIST_RAD = math.pi * (3.0 - math.sqrt(5.0))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -61,7 +80,8 @@ def subray_pattern(n_rings: int) -> SubrayPattern:
     Each ray on ring k stands for an equal share of the annulus (6k rays for an
     area growing as k), so its weight is the Gaussian profile at its radius,
     ``exp(-2 rho^2)`` (HELIOS++, Winiwarter et al. 2022; PlantSimulationLab
-    Helios' Gaussian beam). 0 rings is one ray.
+    Helios' Gaussian beam). 0 rings is one ray. Ring k is turned by
+    ``k * RING_TWIST_RAD`` (see the module's note on mixed pixels).
 
     Args:
       n_rings: number of rings (>= 0); 1 -> 7 rays, 2 -> 19, 3 -> 37.
@@ -74,7 +94,7 @@ def subray_pattern(n_rings: int) -> SubrayPattern:
     n_rings = int(n_rings)
     offsets = [np.zeros((1, 2))]
     for k in range(1, n_rings + 1):
-        phi = 2 * np.pi * np.arange(6 * k) / (6 * k)
+        phi = 2 * np.pi * np.arange(6 * k) / (6 * k) + k * RING_TWIST_RAD
         offsets.append((k / n_rings) * np.stack([np.cos(phi), np.sin(phi)], axis=1))
     offsets = np.concatenate(offsets)
     weights = np.exp(-2.0 * np.sum(offsets ** 2, axis=1))
@@ -88,8 +108,25 @@ def subray_pattern(n_rings: int) -> SubrayPattern:
     return SubrayPattern(offsets=offsets, weights=weights, probe=probe)
 
 
+def pattern_rotations_rad(rng: np.random.Generator, shape) -> np.ndarray:
+    """Random turns of the sub-ray pattern about the beam axis, uniform in [0, 2 pi).
+
+    Draw them from the run's generator, one per beam (fixed ray table) or one
+    per beam and line, and pass them as ``rotation_rad`` to :func:`subrays_lidar`.
+
+    Args:
+      rng: the run's generator (one ``uniform`` draw of ``shape``).
+      shape: e.g. ``(n_beams,)`` or ``(n_lines, n_beams)``.
+
+    Returns:
+      ``shape`` float64 radians.
+    """
+    return rng.uniform(0.0, 2.0 * np.pi, size=shape)
+
+
 def subrays_lidar(beam_angles_rad: np.ndarray, pattern: SubrayPattern, *,
-                  divergence_rad: float, exit_diameter_m: float
+                  divergence_rad: float, exit_diameter_m: float,
+                  rotation_rad: np.ndarray | None = None,
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Origins and directions of every sub-ray of every beam, lidar frame.
 
@@ -101,22 +138,35 @@ def subrays_lidar(beam_angles_rad: np.ndarray, pattern: SubrayPattern, *,
       pattern: the footprint sampling.
       divergence_rad: full angle of the 1/e^2 cone.
       exit_diameter_m: 1/e^2 diameter at the optical centre, metres.
+      rotation_rad: None (the pattern as it is), or a turn of the pattern
+        about each beam's axis, radians, of shape (n_beams,) or
+        (..., n_beams) (e.g. (n_lines, n_beams): a new turn per line;
+        :func:`pattern_rotations_rad`).
 
     Returns:
-      origins_lidar (n_beams, n_sub, 3) float64 metres, dirs_lidar
-      (n_beams, n_sub, 3) float64 unit vectors.
+      origins_lidar (..., n_beams, n_sub, 3) float64 metres, dirs_lidar
+      (..., n_beams, n_sub, 3) float64 unit vectors; the leading ``...`` is
+      that of ``rotation_rad`` (none without it).
     """
     a = np.asarray(beam_angles_rad, dtype=np.float64)
     d = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)
     e_in = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
     e_out = np.broadcast_to(np.array([0.0, 0.0, 1.0]), d.shape)
-    u = pattern.offsets[:, 0][None, :, None]
-    v = pattern.offsets[:, 1][None, :, None]
-    transverse = u * e_in[:, None, :] + v * e_out[:, None, :]
+    u0, v0 = pattern.offsets[:, 0], pattern.offsets[:, 1]
+    if rotation_rad is None:
+        u, v = u0[None, :], v0[None, :]
+    else:
+        rot = np.asarray(rotation_rad, dtype=np.float64)
+        if rot.shape[-1:] != a.shape:
+            raise ValueError(f"rotation_rad must have shape (..., n_beams) with n_beams = {len(a)}, "
+                             f"got shape {rot.shape}")
+        c, s_ = np.cos(rot)[..., None], np.sin(rot)[..., None]
+        u, v = c * u0 - s_ * v0, s_ * u0 + c * v0  # (..., n_beams, n_sub)
+    transverse = u[..., None] * e_in[:, None, :] + v[..., None] * e_out[:, None, :]
     origins = 0.5 * exit_diameter_m * transverse
     dirs = d[:, None, :] + 0.5 * divergence_rad * transverse
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
-    dirs[:, 0, :] = d
+    dirs[..., 0, :] = d
     return origins, dirs
 
 
