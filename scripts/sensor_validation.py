@@ -16,7 +16,6 @@ Prints Markdown; takes a few seconds.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 
 import numpy as np
@@ -142,7 +141,7 @@ def main() -> None:
                                          lines=n, seed=seed + 3)
             print(f"| {inc} | {fmt(sd)} | {fmt(bias, digits=2)} | {drop:.1%} |")
         if lidar.warmup_drift_m:
-            print(f"\n| minutes since power-on, white at 0.5 m | bias (mm) |")
+            print("\n| minutes since power-on, white at 0.5 m | bias (mm) |")
             print("|---|---|")
             for minutes in (0, 5, 10, 20, 30, 60):
                 _, bias, _ = plate_stats(lidar, distance_m=0.5, lines=n, seed=seed + 4,

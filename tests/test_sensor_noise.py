@@ -13,7 +13,7 @@ from plantsim.rig.scene import HitClass, build_spec, compile_scene
 from plantsim.scan.config import config_from_dict
 from plantsim.scan.pipeline import step_and_shoot
 from plantsim.scan.schedule import StepScan
-from plantsim.sensor.fit import FlatTargetRecording, SensorFit, fit_sensor
+from plantsim.sensor.fit import FlatTargetRecording, fit_sensor
 from plantsim.sensor.flat_target import FlatTarget, simulate_flat_target
 from plantsim.sensor.footprint import (combine_footprint, jitter_subrays, subray_pattern,
                                        subrays_lidar)
@@ -203,9 +203,9 @@ def test_twisted_rings_have_distinct_offsets_and_rotation_keeps_the_footprint():
     for axis in (0, 1):
         assert len(np.unique(np.round(pattern.offsets[:, axis], 9))) == pattern.n_subrays
     angles = np.array([0.0, 0.5])
-    o0, d0 = subrays_lidar(angles, pattern, divergence_rad=0.01, exit_diameter_m=0.002)
+    _, d0 = subrays_lidar(angles, pattern, divergence_rad=0.01, exit_diameter_m=0.002)
     rot = np.array([[0.0, 0.0], [1.0, 2.0]])
-    o1, d1 = subrays_lidar(angles, pattern, divergence_rad=0.01, exit_diameter_m=0.002,
+    _, d1 = subrays_lidar(angles, pattern, divergence_rad=0.01, exit_diameter_m=0.002,
                            rotation_rad=rot)
     assert d1.shape == (2,) + d0.shape
     np.testing.assert_allclose(d1[0], d0)

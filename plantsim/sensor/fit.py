@@ -147,11 +147,11 @@ class SensorFit:
                  + (f" from {source}" if source else ""),
                  f"# {self.n_returns} returns ({self.n_outliers} outliers left out), "
                  f"RMS residual {self.rms_residual_m * 1000:.2f} mm.",
-                 "# Not separable in the recording (written as 0): "
-                 + (", ".join(k for k, v in (("range_bias_rel", self.range_bias_rel),
-                                             ("range_bias_dark_m", self.range_bias_dark_m),
-                                             ("warmup_drift_m", self.warmup_drift_m)) if v is None)
-                    or "none") + ".",
+                 ("# Not separable in the recording (written as 0): "
+                  + (", ".join(k for k, v in (("range_bias_rel", self.range_bias_rel),
+                                              ("range_bias_dark_m", self.range_bias_dark_m),
+                                              ("warmup_drift_m", self.warmup_drift_m)) if v is None)
+                     or "none") + "."),
                  "", "[lidar]", f'preset = "{preset}"']
         for key, value in self.lidar_overrides().items():
             lines.append(f'{key} = "{value}"' if isinstance(value, str) else f"{key} = {value:.6g}")

@@ -162,7 +162,7 @@ def jitter_subrays(pattern: SubrayPattern, rng: np.random.Generator, shape
       float64 summing to 1 (pass to :func:`combine_footprint`).
     """
     n = pattern_rings(pattern)
-    shape = tuple(np.atleast_1d(shape).astype(int)) if not isinstance(shape, tuple) else shape
+    shape = (int(shape),) if isinstance(shape, (int, np.integer)) else tuple(shape)
     S = pattern.n_subrays
     if n == 0:
         return np.zeros(shape + (1, 2)), np.ones(shape + (1,))

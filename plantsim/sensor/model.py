@@ -47,7 +47,7 @@ import math
 import numpy as np
 
 from plantsim.rig.scene import HitClass
-from plantsim.sensor.spec import NOISE_LAWS, BeamStatus, LidarSpec
+from plantsim.sensor.spec import BeamStatus, LidarSpec
 
 log = logging.getLogger(__name__)
 
