@@ -102,7 +102,7 @@ def test_flat_plate_sd_and_bias_match_the_model(distance_m, tilt_deg):
     lidar = URG_04LX_UG01.replace(range_bias_m=0.006, range_bias_dark_m=0.010)
     scene = _scene_with_wall(distance_m, math.radians(tilt_deg))
     wall_id = scene.model.geom("wall").id
-    raw = step_and_shoot(scene, lidar, StepScan(step_deg=1.0, sweep_deg=400.0), model=SensorModel(),
+    raw = step_and_shoot(scene, lidar, StepScan(step_deg=1.0, sweep_deg=360.0), model=SensorModel(),
                          rng=np.random.default_rng(5))
     # The front beam meets the tilted plate at incidence tilt_deg; nearby beams at
     # nearly the same incidence: use +-3 beams around it.
