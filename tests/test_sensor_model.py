@@ -99,8 +99,8 @@ def test_combine_two_surfaces_gives_a_range_between_them():
     assert np.isnan(nothing.range_m[0]) and nothing.dominant[0] == -1
 
 
-def test_range_sigma_has_the_datasheet_bands_and_grows_with_incidence():
-    lidar = URG_04LX_UG01
+def test_worst_case_range_sigma_has_the_datasheet_bands_and_grows_with_incidence():
+    lidar = PRESETS["urg-04lx-ug01-worst-case"]
     np.testing.assert_allclose(range_sigma(np.array([0.1, 0.5, 1.0, 2.0, 4.0]), np.ones(5), lidar),
                                [0.030, 0.030, 0.030, 0.060, 0.120])
     cos60 = math.cos(math.radians(60))
@@ -141,7 +141,7 @@ def test_flat_plate_is_unbiased_with_the_model_sigma(distance_m):
     on_wall &= np.abs(angle) < math.radians(30)
     assert np.all(raw.status[on_wall] == BeamStatus.OK)
     true = distance_m / np.cos(angle[on_wall])
-    sigma = range_sigma(true, np.cos(angle[on_wall]), URG_04LX_UG01)
+    sigma = range_sigma(true, np.cos(angle[on_wall]), URG_04LX_UG01, reflectance=0.5)
     z = (raw.range_m[on_wall] - true) / sigma
     n = z.size
     assert n > 2000
@@ -288,15 +288,17 @@ def test_adaptive_footprint_refines_only_edges():
 # --- presets and configuration ------------------------------------------------
 
 def test_presets_are_valid_and_sourced():
-    assert set(PRESETS) == {"urg-04lx-ug01", "utm-30lx", "sick-lms111"}
+    assert set(PRESETS) == {"urg-04lx-ug01", "utm-30lx", "sick-lms111", "urg-04lx-ug01-worst-case"}
     assert lidar_preset("UTM-30LX").fov_deg == pytest.approx(270.0)
     assert lidar_preset("sick-lms111").n_beams == 1081
     urg = lidar_preset("urg-04lx-ug01")
-    assert urg.range_resolution_m == 0.001 and urg.range_sigma_m == 0.030
+    assert urg.range_resolution_m == 0.001 and urg.range_sigma_m == 0.010
+    assert lidar_preset("urg-04lx-ug01-worst-case").range_sigma_m == 0.030
     for spec in PRESETS.values():
         assert spec.beam_divergence_rad > 0 and spec.detection_range_white_m is not None
     with pytest.raises(ValueError, match="unknown LiDAR preset 'x'; valid presets: "
-                                         "urg-04lx-ug01, utm-30lx, sick-lms111"):
+                                         "urg-04lx-ug01, utm-30lx, sick-lms111, "
+                                         "urg-04lx-ug01-worst-case"):
         lidar_preset("x")
 
 

@@ -293,6 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     from plantsim.cli.study import add_study_command
 
     add_study_command(sub)
+    __import__("plantsim.cli.sensor", fromlist=["add_sensor_commands"]).add_sensor_commands(sub)
     add_rig_commands(sub)
     return parser
 

@@ -24,13 +24,40 @@ power-weighted mean range):
     w_i = exp(-2 (rho_i / w0)^2) / sum(...)        (Gaussian TEM00 profile)
 
 with rho_i the sub-ray's offset radius in units of the 1/e^2 radius w0.
+
+Mixed pixels as a continuum. A phase sensor integrates the whole footprint,
+so as an edge crosses it the reported range moves continuously between the
+two surfaces. A fixed set of sub-rays turns that into steps: the range
+changes only when the edge passes a sub-ray. Two things undo the steps here:
+each ring is turned by the golden angle against the one inside it (so no two
+sub-rays share a projection on any axis of the pattern, and an edge crossing
+the footprint passes them one at a time: n_sub + 1 levels, not a few). That
+still leaves steps, because the weights are fixed: the mixture fraction is a
+sum of a subset of them. :func:`jitter_subrays` removes them: each sub-ray
+stands for an equal-area cell of the footprint (the axis disk, and on ring k
+6k sectors of the annulus between radii (k -+ 1/2) / n_rings); drawn from the
+run's generator, every sub-ray moves to a uniformly random point of its cell
+and weighs the Gaussian profile there times its cell's area (stratified Monte
+Carlo integration of the beam profile, unbiased for any scene). Sub-ray
+positions and weights then vary continuously from beam to beam, and so do the
+mixture fractions and the mixed-pixel ranges, which fill the whole interval
+between the two surfaces as a phase sensor's do. With no rings (one ray per
+beam) nothing moves: the ideal scan. A cheaper partial remedy is
+a random turn of the whole pattern per beam (:func:`pattern_rotations_rad`,
+``rotation_rad``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
+
+# Each ring is turned by this against the ring inside it (the golden angle,
+# pi (3 - sqrt 5)): no two sub-rays of the pattern share an in-plane or an
+# out-of-plane offset, so an edge crossing the footprint passes them one by one.
+RING_TWIST_RAD = math.pi * (3.0 - math.sqrt(5.0))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -61,7 +88,8 @@ def subray_pattern(n_rings: int) -> SubrayPattern:
     Each ray on ring k stands for an equal share of the annulus (6k rays for an
     area growing as k), so its weight is the Gaussian profile at its radius,
     ``exp(-2 rho^2)`` (HELIOS++, Winiwarter et al. 2022; PlantSimulationLab
-    Helios' Gaussian beam). 0 rings is one ray.
+    Helios' Gaussian beam). 0 rings is one ray. Ring k is turned by
+    ``k * RING_TWIST_RAD`` (see the module's note on mixed pixels).
 
     Args:
       n_rings: number of rings (>= 0); 1 -> 7 rays, 2 -> 19, 3 -> 37.
@@ -74,7 +102,7 @@ def subray_pattern(n_rings: int) -> SubrayPattern:
     n_rings = int(n_rings)
     offsets = [np.zeros((1, 2))]
     for k in range(1, n_rings + 1):
-        phi = 2 * np.pi * np.arange(6 * k) / (6 * k)
+        phi = 2 * np.pi * np.arange(6 * k) / (6 * k) + k * RING_TWIST_RAD
         offsets.append((k / n_rings) * np.stack([np.cos(phi), np.sin(phi)], axis=1))
     offsets = np.concatenate(offsets)
     weights = np.exp(-2.0 * np.sum(offsets ** 2, axis=1))
@@ -88,8 +116,77 @@ def subray_pattern(n_rings: int) -> SubrayPattern:
     return SubrayPattern(offsets=offsets, weights=weights, probe=probe)
 
 
+def pattern_rotations_rad(rng: np.random.Generator, shape) -> np.ndarray:
+    """Random turns of the sub-ray pattern about the beam axis, uniform in [0, 2 pi).
+
+    Draw them from the run's generator, one per beam (fixed ray table) or one
+    per beam and line, and pass them as ``rotation_rad`` to :func:`subrays_lidar`.
+
+    Args:
+      rng: the run's generator (one ``uniform`` draw of ``shape``).
+      shape: e.g. ``(n_beams,)`` or ``(n_lines, n_beams)``.
+
+    Returns:
+      ``shape`` float64 radians.
+    """
+    return rng.uniform(0.0, 2.0 * np.pi, size=shape)
+
+
+def pattern_rings(pattern: SubrayPattern) -> int:
+    """The number of rings of a :func:`subray_pattern` (1 + 3 n (n + 1) sub-rays)."""
+    n = int(round((-3 + math.sqrt(9 + 12 * (pattern.n_subrays - 1))) / 6))
+    if 1 + 3 * n * (n + 1) != pattern.n_subrays:
+        raise ValueError(f"not a ring pattern: {pattern.n_subrays} sub-rays")
+    return n
+
+
+def jitter_subrays(pattern: SubrayPattern, rng: np.random.Generator, shape
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Each sub-ray at a random point of its equal-area cell, weighted by the profile there.
+
+    Stratified Monte Carlo sampling of the Gaussian beam (see the module's
+    note on mixed pixels). Ring k (of n) owns the annulus between radii
+    (k - 1/2)/n and (k + 1/2)/n (the outer ring's reaches past the 1/e^2
+    radius into the profile's tail), cut into 6k sectors centred on the
+    pattern's sub-rays; the axis sub-ray owns the disk of radius 1/(2n). A sub-ray's weight is ``exp(-2 rho^2)`` at its new position times
+    its cell's area, normalised per beam.
+
+    Args:
+      pattern: a :func:`subray_pattern`.
+      rng: the run's generator (two ``random`` draws of ``shape + (n_sub,)``).
+      shape: leading shape, e.g. ``(n_beams,)`` or ``(n_lines, n_beams)``.
+
+    Returns:
+      offsets (*shape, n_sub, 2) float64 in units of the 1/e^2 radius (pass
+      as ``offsets`` to :func:`subrays_lidar`), and weights (*shape, n_sub)
+      float64 summing to 1 (pass to :func:`combine_footprint`).
+    """
+    n = pattern_rings(pattern)
+    shape = (int(shape),) if isinstance(shape, (int, np.integer)) else tuple(shape)
+    S = pattern.n_subrays
+    if n == 0:
+        return np.zeros(shape + (1, 2)), np.ones(shape + (1,))
+    ring = np.concatenate([[0]] + [np.full(6 * k, k) for k in range(1, n + 1)])
+    phi_c = np.arctan2(pattern.offsets[:, 1], pattern.offsets[:, 0])
+    u, v = rng.random(shape + (S,)), rng.random(shape + (S,))
+    r0 = np.maximum(ring - 0.5, 0.0) / n
+    r1 = (ring + 0.5) / n
+    rho = np.sqrt(r0 ** 2 + u * (r1 ** 2 - r0 ** 2))
+    half = np.where(ring > 0, np.pi / np.maximum(6 * ring, 1), 0.0)
+    phi = phi_c + (2 * v - 1) * half
+    phi = np.where(ring > 0, phi, 2 * np.pi * v)
+    # A sector of angle 2 half between r0 and r1 has area (r1^2 - r0^2) half; the axis disk pi r1^2.
+    area = np.where(ring > 0, (r1 ** 2 - r0 ** 2) * half, np.pi * r1 ** 2)
+    offsets = np.stack([rho * np.cos(phi), rho * np.sin(phi)], axis=-1)
+    weights = np.exp(-2.0 * rho ** 2) * area
+    weights /= weights.sum(axis=-1, keepdims=True)
+    return offsets, weights
+
+
 def subrays_lidar(beam_angles_rad: np.ndarray, pattern: SubrayPattern, *,
-                  divergence_rad: float, exit_diameter_m: float
+                  divergence_rad: float, exit_diameter_m: float,
+                  rotation_rad: np.ndarray | None = None,
+                  offsets: np.ndarray | None = None,
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Origins and directions of every sub-ray of every beam, lidar frame.
 
@@ -101,22 +198,46 @@ def subrays_lidar(beam_angles_rad: np.ndarray, pattern: SubrayPattern, *,
       pattern: the footprint sampling.
       divergence_rad: full angle of the 1/e^2 cone.
       exit_diameter_m: 1/e^2 diameter at the optical centre, metres.
+      rotation_rad: None (the pattern as it is), or a turn of the pattern
+        about each beam's axis, radians, of shape (n_beams,) or
+        (..., n_beams) (e.g. (n_lines, n_beams): a new turn per line;
+        :func:`pattern_rotations_rad`).
+      offsets: None (the pattern's), or per-beam sub-ray offsets of shape
+        (..., n_beams, n_sub, 2) from :func:`jitter_subrays`; then
+        ``rotation_rad`` must be None.
 
     Returns:
-      origins_lidar (n_beams, n_sub, 3) float64 metres, dirs_lidar
-      (n_beams, n_sub, 3) float64 unit vectors.
+      origins_lidar (..., n_beams, n_sub, 3) float64 metres, dirs_lidar
+      (..., n_beams, n_sub, 3) float64 unit vectors; the leading ``...`` is
+      that of ``rotation_rad`` or ``offsets`` (none without them).
     """
     a = np.asarray(beam_angles_rad, dtype=np.float64)
     d = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=-1)
     e_in = np.stack([-np.sin(a), np.cos(a), np.zeros_like(a)], axis=-1)
     e_out = np.broadcast_to(np.array([0.0, 0.0, 1.0]), d.shape)
-    u = pattern.offsets[:, 0][None, :, None]
-    v = pattern.offsets[:, 1][None, :, None]
-    transverse = u * e_in[:, None, :] + v * e_out[:, None, :]
+    u0, v0 = pattern.offsets[:, 0], pattern.offsets[:, 1]
+    if offsets is not None:
+        off = np.asarray(offsets, dtype=np.float64)
+        if rotation_rad is not None:
+            raise ValueError("give rotation_rad or offsets, not both")
+        if off.shape[-3:] != (len(a), pattern.n_subrays, 2):
+            raise ValueError(f"offsets must have shape (..., {len(a)}, {pattern.n_subrays}, 2), "
+                             f"got shape {off.shape}")
+        u, v = off[..., 0], off[..., 1]
+    elif rotation_rad is None:
+        u, v = u0[None, :], v0[None, :]
+    else:
+        rot = np.asarray(rotation_rad, dtype=np.float64)
+        if rot.shape[-1:] != a.shape:
+            raise ValueError(f"rotation_rad must have shape (..., n_beams) with n_beams = {len(a)}, "
+                             f"got shape {rot.shape}")
+        c, s_ = np.cos(rot)[..., None], np.sin(rot)[..., None]
+        u, v = c * u0 - s_ * v0, s_ * u0 + c * v0  # (..., n_beams, n_sub)
+    transverse = u[..., None] * e_in[:, None, :] + v[..., None] * e_out[:, None, :]
     origins = 0.5 * exit_diameter_m * transverse
     dirs = d[:, None, :] + 0.5 * divergence_rad * transverse
     dirs /= np.linalg.norm(dirs, axis=-1, keepdims=True)
-    dirs[:, 0, :] = d
+    dirs[..., 0, :] = d
     return origins, dirs
 
 

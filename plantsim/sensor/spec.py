@@ -18,6 +18,10 @@ import math
 import numpy as np
 
 
+# How the random range noise grows (:func:`plantsim.sensor.model.range_sigma`).
+NOISE_LAWS = ("received-power", "datasheet-band")
+
+
 class BeamStatus(enum.IntEnum):
     """Why a beam has, or has not, a range (kept per beam in the raw record).
 
@@ -54,13 +58,26 @@ class LidarSpec:
         ``beam_exit_diameter_m + r * beam_divergence_rad``. 0: a thin ray.
       beam_exit_diameter_m: 1/e^2 beam diameter at the optical centre, metres.
       range_resolution_m: step of the reported range (quantisation); 0: none.
-      range_sigma_m: range noise standard deviation floor, metres.
-      range_sigma_rel: range noise standard deviation as a fraction of range;
-        at normal incidence sigma(r) = max(range_sigma_m, range_sigma_rel * r)
-        (:func:`plantsim.sensor_model.range_sigma`).
-      range_sigma_incidence_gain: growth of the noise with incidence angle
-        theta: sigma is multiplied by ``1 + gain * (1 / cos(theta) - 1)``;
-        0 turns it off, 1 is the 1/cos law.
+      noise_law: how the random noise grows: "received-power" (the presets:
+        sigma = hypot(range_sigma_m, range_sigma_rel / sqrt(P)), P the
+        received power) or "datasheet-band" (the worst case: the datasheet's
+        accuracy band read as one sigma, times a 1/cos incidence law).
+        :func:`plantsim.sensor.model.range_sigma` has both.
+      range_sigma_m: random noise standard deviation floor (strong returns), metres.
+      range_sigma_rel: "received-power": noise standard deviation per metre of
+        white-equivalent range 1/sqrt(P) (a white target head-on at r has
+        sigma = hypot(range_sigma_m, range_sigma_rel * r));
+        "datasheet-band": fraction of the range, sigma(r) =
+        max(range_sigma_m, range_sigma_rel * r) at normal incidence.
+      range_sigma_incidence_gain: "datasheet-band" only: sigma is multiplied by
+        ``1 + gain * (1 / cos(theta) - 1)``; 0 turns it off, 1 is the 1/cos law.
+      range_bias_m: systematic range offset of the unit (measured minus true), metres.
+      range_bias_rel: systematic scale error, fraction of the range.
+      range_bias_dark_m: extra offset of a black target against a white one,
+        metres; the bias grows linearly with (1 - reflectance).
+      warmup_drift_m: range offset right after power-on, metres, settling as
+        ``exp(-t / warmup_time_constant_s)`` (:func:`plantsim.sensor.model.warmup_drift`).
+      warmup_time_constant_s: the drift's time constant, seconds (> 0).
       detection_range_white_m: range at which a white (reflectance 1)
         Lambertian target seen head-on returns the least power the sensor can
         range on; weaker returns are LOW_INTENSITY. None: no threshold.
@@ -84,6 +101,12 @@ class LidarSpec:
     range_sigma_m: float = 0.0
     range_sigma_rel: float = 0.0
     range_sigma_incidence_gain: float = 0.0
+    noise_law: str = "received-power"
+    range_bias_m: float = 0.0
+    range_bias_rel: float = 0.0
+    range_bias_dark_m: float = 0.0
+    warmup_drift_m: float = 0.0
+    warmup_time_constant_s: float = 600.0
     detection_range_white_m: float | None = None
     edge_range_spread_m: float | None = None
 
@@ -125,6 +148,20 @@ class LidarSpec:
             if (isinstance(value, bool) or not isinstance(value, (int, float))
                     or not math.isfinite(value) or value < 0):
                 raise ValueError(f"{field} must be a finite number >= 0, got {value!r}")
+        if self.noise_law not in NOISE_LAWS:
+            raise ValueError(f"noise_law must be one of {', '.join(NOISE_LAWS)}, got {self.noise_law!r}")
+        for field in ("range_bias_m", "range_bias_dark_m", "warmup_drift_m"):
+            value = getattr(self, field)
+            if (isinstance(value, bool) or not isinstance(value, (int, float))
+                    or not math.isfinite(value) or abs(value) > 1.0):
+                raise ValueError(f"{field} must be a finite number of metres within +-1 m, got {value!r}")
+        rel = self.range_bias_rel
+        if isinstance(rel, bool) or not isinstance(rel, (int, float)) or not abs(rel) < 0.5:
+            raise ValueError(f"range_bias_rel must be a fraction of the range within +-0.5, got {rel!r}")
+        tau = self.warmup_time_constant_s
+        if (isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau)
+                or tau <= 0):
+            raise ValueError(f"warmup_time_constant_s must be a finite number of seconds > 0, got {tau!r}")
         for field in ("detection_range_white_m", "edge_range_spread_m"):
             value = getattr(self, field)
             if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
@@ -178,33 +215,65 @@ URG_04LX_UG01 = LidarSpec(
 
     # Sensor model (same notes; datasheet figures unverified against the PDF):
     # - range resolution 1 mm;
-    # - accuracy +-30 mm for 60-1000 mm, +-3 % of range for 1000-4095 mm, read
-    #   as one standard deviation: sigma = max(30 mm, 0.03 r) (fit your unit);
-    # - noise growth with incidence by the 1/cos law (gain 1): range precision
-    #   falls with the received signal, which falls as cos(theta)
-    #   (Soudarissanane et al. 2009/2011: noise dominates above ~60 degrees);
+    # - the datasheet's accuracy, +-30 mm for 60-1000 mm and +-3 % of range
+    #   beyond, is bias plus noise (Kneip et al., ICRA 2009: accuracy depends on
+    #   the target, repeatability matches a SICK LMS 200). Random noise: a
+    #   10 mm floor (Iman and Md Rashid, IIUM Eng. J. 17(1) 2016: 10.54 mm
+    #   average standard deviation at close range; the ROS/Gazebo URG models use
+    #   sigma = 10 mm), growing as 1/sqrt(received power) at 1 % of the
+    #   white-equivalent range (the "3 % of range" band beyond 1 m read as
+    #   +-3 sigma): a matte target at 0.1-1 m has sigma 10-14 mm;
+    # - systematic error: per unit and per target (Kneip et al. 2009; Okubo,
+    #   Ye and Borenstein 2009 fit a calibration model); its sign is not
+    #   transferable between units, so the preset's bias is 0: fit your unit
+    #   (``plantsim sensor fit``);
+    # - warm-up drift: measured by Kneip et al. 2009 and the Sensors 2022
+    #   comparison (PMC9333273); 10 mm settling with a 10 min time constant is
+    #   an assumed figure of that order (fit your unit); a scan starts an hour
+    #   after power-on by default ([sensor_model] power_on_age_s), so it is
+    #   negligible unless you say the sensor was just switched on;
     # - footprint under 20 mm at 2 m and up to 40 mm at 4 m: a line through
     #   both figures is 10 mrad full divergence from a ~0 mm exit diameter;
     # - 4 m guaranteed on white paper, DMAX 5.6 m: a white target head-on is
     #   detected out to 5.6 m (the detection threshold);
     # - edge error (code 7) for footprints spread over more than 0.1 m: an
-    #   assumed figure, not a datasheet one (real URG clouds keep many mixed
-    #   pixels).
+    #   assumed figure, not a datasheet one (the firmware's rule is not
+    #   published; real URG clouds keep many mixed pixels, Okubo et al. 2009).
     beam_divergence_rad=0.010,
     beam_exit_diameter_m=0.0,
     range_resolution_m=0.001,
+    noise_law="received-power",
+    range_sigma_m=0.010,
+    range_sigma_rel=0.01,
+    warmup_drift_m=0.010,
+    warmup_time_constant_s=600.0,
+    detection_range_white_m=5.6,
+    edge_range_spread_m=0.10,
+)
+
+# The URG-04LX as it was modelled before issue 10, kept as a named worst case:
+# the datasheet's +-30 mm / 3 % accuracy band read as one standard deviation of
+# random noise, multiplied by 1/cos(incidence) up to 5.8x at 80 degrees.
+# A flat plate at 0.3 m has a 30 mm standard deviation: far noisier than any
+# published characterisation of the sensor (see docs/sensor-validation.md).
+URG_04LX_UG01_WORST_CASE = dataclasses.replace(
+    URG_04LX_UG01,
+    name="urg-04lx-ug01-worst-case",
+    noise_law="datasheet-band",
     range_sigma_m=0.030,
     range_sigma_rel=0.03,
     range_sigma_incidence_gain=1.0,
-    detection_range_white_m=5.6,
-    edge_range_spread_m=0.10,
+    warmup_drift_m=0.0,
 )
 
 # Hokuyo UTM-30LX. Grid from the SCIP 2.0 specification (Hokuyo C-42-03320B,
 # table 2): 1440 steps/turn, steps 0..1080, front step 540, 270.25 deg; 40 Hz
 # (25 ms) scan, range 0.1-30 m, 1 mm resolution, accuracy +-30 mm at
-# 0.1-10 m and +-50 mm at 10-30 m (datasheet, unverified), read as one
-# standard deviation and approximated by max(30 mm, r x 50 mm / 30 m). The
+# 0.1-10 m and +-50 mm at 10-30 m (datasheet, unverified): bias plus noise.
+# Random noise: a 10 mm floor (the same class of phase sensor as the URG;
+# libpointmatcher's empirical model of it, Pomerleau et al. 2012, gives a
+# similar close-range radius), growing at 0.05 % of the white-equivalent
+# range (the extra +-20 mm at 30 m read as +-3 sigma); bias per unit, 0 here. The
 # vendor gives no divergence; these beam figures are libpointmatcher's
 # SimpleSensorNoise ones for this sensor (half-angle 0.6 mrad, 1.5 mm beam
 # constant, taken as the radius), an estimate to fit.
@@ -221,9 +290,9 @@ UTM_30LX = LidarSpec(
     beam_divergence_rad=0.0012,
     beam_exit_diameter_m=0.003,
     range_resolution_m=0.001,
-    range_sigma_m=0.030,
-    range_sigma_rel=0.05 / 30.0,
-    range_sigma_incidence_gain=1.0,
+    noise_law="received-power",
+    range_sigma_m=0.010,
+    range_sigma_rel=0.0005,
     detection_range_white_m=30.0,
     edge_range_spread_m=0.10,
 )
@@ -232,8 +301,9 @@ UTM_30LX = LidarSpec(
 # working range, 1 mm output resolution (datasheet, unverified). SICK's
 # support article "Measurement Errors LMSxxx" gives the LMS1xx a typical
 # systematic error of +-30 mm and a typical statistical error of 12 mm (one
-# standard deviation): sigma = 12 mm flat (the systematic part is a per-unit
-# bias, not modelled). Beam: "distance x 0.015 rad + 8 mm" (LMS1xx operating
+# standard deviation): a 12 mm floor, growing little with received power over
+# the working range (0.1 % of the white-equivalent range, assumed); the
+# systematic part is a per-unit bias (range_bias_m, 0 here: fit it). Beam: "distance x 0.015 rad + 8 mm" (LMS1xx operating
 # instructions 8012471, section 3.6.2). No encoder steps: the 25 Hz mirror
 # spends 270/360 of its turn on the field of view.
 SICK_LMS111 = LidarSpec(
@@ -247,15 +317,16 @@ SICK_LMS111 = LidarSpec(
     beam_divergence_rad=0.015,
     beam_exit_diameter_m=0.008,
     range_resolution_m=0.001,
+    noise_law="received-power",
     range_sigma_m=0.012,
-    range_sigma_rel=0.0,
-    range_sigma_incidence_gain=1.0,
+    range_sigma_rel=0.001,
     detection_range_white_m=20.0,
     edge_range_spread_m=0.10,
 )
 
 # The default first: error messages list the presets in this order.
-PRESETS: dict[str, LidarSpec] = {spec.name: spec for spec in (URG_04LX_UG01, UTM_30LX, SICK_LMS111)}
+PRESETS: dict[str, LidarSpec] = {spec.name: spec for spec in (
+    URG_04LX_UG01, UTM_30LX, SICK_LMS111, URG_04LX_UG01_WORST_CASE)}
 
 
 def lidar_preset(name: str) -> LidarSpec:
