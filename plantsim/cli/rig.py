@@ -111,7 +111,8 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         with rig_safety() as safety:
             try:
                 turntable = ServoTurntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id,
-                                                   model=args.model, retries=args.retries, safety=safety)
+                                                   model=args.model, retries=args.retries, safety=safety,
+                                                   driver_options=_driver_options(args))
             except HardwareError as exc:
                 print(f"plantsim: error: {exc}", file=sys.stderr)
                 return 1
@@ -162,6 +163,13 @@ def rig_safety(stream=None):
             print(f"plantsim: {report.warning()}", file=stream or sys.stderr, flush=True)
 
 
+def _driver_options(args: argparse.Namespace) -> dict:
+    timeout_ms = args.status_timeout_ms
+    if not (0 < timeout_ms <= 10_000):
+        raise ValueError(f"--status-timeout-ms must be in (0, 10000], got {timeout_ms}")
+    return {"status_timeout_s": timeout_ms / 1e3}
+
+
 def _interrupt_name(exc: BaseException) -> str:
     signum = getattr(exc, "signum", None)
     return f"terminated ({signal.Signals(signum).name})" if signum else "interrupted"
@@ -179,6 +187,9 @@ def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--id", dest="dxl_id", type=int, default=1, help="servo ID (default: 1)")
     parser.add_argument("--model", choices=sorted(ct.CONTROL_TABLES), default="xm430-w350",
                         help="expected model (default: xm430-w350)")
+    parser.add_argument("--status-timeout-ms", type=float, default=34.0, metavar="MS",
+                        help="least time to wait for the servo's reply, ms (default: 34, the SDK's; raise it "
+                        "for a slow USB adapter or an emulator on a busy machine)")
 
 
 def run_emulator(args: argparse.Namespace) -> int:
@@ -207,7 +218,7 @@ def run_rig_ping(args: argparse.Namespace) -> int:
     from plantsim.errors import HardwareError
 
     try:
-        with rig_safety(), DynamixelTurntable(model=args.model) as turntable:
+        with rig_safety(), DynamixelTurntable(model=args.model, **_driver_options(args)) as turntable:
             # Ping leaves the torque as it found it: no stop action to register.
             turntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id)
             position = turntable.position()

@@ -198,7 +198,9 @@ class SafeStop:
                 if action.verify is None or action.verify():
                     return StopOutcome(action.name, True, attempt, "", action.advice)
                 detail = "the read-back says it is still on"
-            except Exception as exc:  # any failure of one attempt: retry, then report it
+            except (Exception, KeyboardInterrupt) as exc:  # any failure of one attempt: retry, report it
+                # (KeyboardInterrupt here can only come from code, not from Ctrl-C, which
+                # is held back: stopping the hardware goes first either way.)
                 detail = f"{type(exc).__name__}: {exc}"
             _log.warning("%s: stop attempt %d of %d failed: %s", action.name, attempt, self.attempts, detail)
             if attempt < self.attempts:

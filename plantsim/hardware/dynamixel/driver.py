@@ -64,8 +64,13 @@ def _sdk():
     return dynamixel_sdk
 
 
-def _port_handler(sdk, port: str, status_timeout_s: float):
-    """The SDK's PortHandler with a status timeout floor and a waiting (not spinning) read."""
+def port_handler(port: str, *, status_timeout_s: float = _SDK_LATENCY_MS / 1e3):
+    """The SDK's ``PortHandler`` with a status timeout floor and a waiting (not spinning) read.
+
+    Its ``min_timeout_ms`` attribute (settable) is the least time the SDK waits for a
+    status, ms; the SDK's own timeout applies when longer.
+    """
+    sdk = _sdk()
 
     class _PortHandler(sdk.PortHandler):
         min_timeout_ms = 1e3 * status_timeout_s
@@ -168,7 +173,7 @@ class DynamixelTurntable:
             raise ValueError(f"dxl_id must be in [0, 252], got {dxl_id}")
         if self._port is not None:
             self.close()
-        handler = _port_handler(sdk, port, self._status_timeout_s)
+        handler = port_handler(port, status_timeout_s=self._status_timeout_s)
         try:
             handler.openPort()
             if not handler.setBaudRate(baud_bps):
@@ -182,6 +187,9 @@ class DynamixelTurntable:
         self._interrupted = False
         self.port_name, self.baud_bps, self.dxl_id = port, baud_bps, dxl_id
         try:
+            # A status still owed to an earlier program (or an interrupted connect) on
+            # this bus must not be taken for the answer: resynchronise first.
+            self.resync(raise_on_failure=False)
             model_number = self.ping()
             if model_number != self.table.model_number:
                 other = ct.CONTROL_TABLES_BY_NUMBER.get(model_number)
@@ -192,7 +200,7 @@ class DynamixelTurntable:
                 )
             self.firmware_version = self.read_register("Firmware Version")
             self._operating_mode = self.read_register("Operating Mode")
-        except HardwareError:
+        except BaseException:  # a failure, or Ctrl-C: do not leave the port open and busy
             self.close()
             raise
         _log.info("connected to %s ID %d on %s at %d bps (firmware %s)", self.table.model_name, dxl_id,
@@ -314,7 +322,10 @@ class DynamixelTurntable:
                 raise ServoCommunicationError(f"{what}: not connected; call connect() first")
             try:
                 self._interrupted = True
-                out = getattr(self._packet, method)(self._port, self.dxl_id, *args)
+                if method == "ping":
+                    out = self._ping_checked()
+                else:
+                    out = getattr(self._packet, method)(self._port, self.dxl_id, *args)
                 self._interrupted = False
             except _port_errors() as exc:
                 port = self.port_name
@@ -327,6 +338,10 @@ class DynamixelTurntable:
             value, result, error = out
         else:
             (result, error), value = out, None
+        if result == 0 and method == "ping" and value is None:
+            raise _LostStatus(
+                f"{what} on {self.port_name} ID {self.dxl_id}: a status that is not a PING's (a late reply to "
+                "an earlier request)")
         if result == 0 and method == "readTxRx" and len(value) != args[-1]:
             # The SDK does not check the length: a status of another length is the
             # late reply to an earlier request, not this one's.
@@ -367,6 +382,21 @@ class DynamixelTurntable:
             f"check the load (jammed turntable, heavy pot), the supply and the temperature; {action}.",
             hardware_error_status=status,
         )
+
+    def _ping_checked(self):
+        """The SDK's ping, but a status without exactly 3 parameters is not taken (value None).
+
+        The SDK's own ``ping`` reads the model number from whatever status comes first.
+        """
+        sdk = _sdk()
+        packet = [0] * 10
+        packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 3, 0, sdk.INST_PING
+        rx, result, error = self._packet.txRxPacket(self._port, packet)
+        if result != sdk.COMM_SUCCESS:
+            return 0, result, error
+        if rx[5] | (rx[6] << 8) != 7:
+            return None, result, error
+        return rx[9] | (rx[10] << 8), result, error
 
     def ping(self) -> int:
         """Pings the servo; returns its model number."""

@@ -331,6 +331,7 @@ class DynamixelEmulator:
         self.port_path: str | None = None
         self._parser = protocol.PacketParser()
         self._sim_time = 0.0
+        self._scheduled: list[tuple[float, int, object]] = []  # (sim time, order, callable)
 
     # --- lifecycle ------------------------------------------------------------------
 
@@ -384,6 +385,27 @@ class DynamixelEmulator:
     def sim_time(self) -> float:
         return self._sim_time
 
+    def call_at(self, sim_time_s: float, action) -> None:
+        """Runs ``action()`` in the emulator's thread once simulated time reaches ``sim_time_s``.
+
+        The clock a test controls: simulated time advances only with the physics, so
+        a fault scheduled 0.3 s of simulated time after a move starts happens at the
+        same point of the move however late the machine lets the emulator run (a
+        wall-clock timer would not). ``action`` runs under :attr:`lock`.
+        """
+        if not (isinstance(sim_time_s, (int, float)) and math.isfinite(sim_time_s)):
+            raise ValueError(f"sim_time_s must be a finite number, got {sim_time_s!r}")
+        if not callable(action):
+            raise ValueError(f"action must be callable, got {action!r}")
+        with self._lock:
+            self._scheduled.append((float(sim_time_s), len(self._scheduled), action))
+            self._scheduled.sort(key=lambda event: event[:2])
+
+    def _run_scheduled(self) -> None:
+        while self._scheduled and self._scheduled[0][0] <= self._sim_time:
+            _, _, action = self._scheduled.pop(0)
+            action()
+
     def inject_no_reply(self, dxl_id: int, *, count: int | None = 1) -> None:
         """The servo ignores the next ``count`` packets (None: until cleared), as if unplugged."""
         _check_count(count)
@@ -424,9 +446,12 @@ class DynamixelEmulator:
                 s.late_count = 0
 
     def disconnect(self) -> None:
-        """Closes the pty, as if the USB adapter were pulled; the SDK's next call fails."""
+        """Closes the pty, as if the USB adapter were pulled; the SDK's next call fails.
+
+        The servos keep their state (a servo whose adapter is pulled keeps its torque).
+        """
         self._disconnect.set()
-        if self._thread is not None:
+        if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
 
     # --- the bus --------------------------------------------------------------------
@@ -453,6 +478,9 @@ class DynamixelEmulator:
                         self._sim_time += steps * timestep
                         for s in self._servos:
                             s.advance(self._sim_time)
+                        self._run_scheduled()
+                if self._disconnect.is_set():
+                    break
                 # Serve the port between short physics chunks; sleep in select when idle.
                 readable, _, _ = select.select([self._master], [], [], 0.0 if steps > 0 else 0.0005)
                 if readable:
