@@ -82,6 +82,15 @@ class Tripwire:
         handler.writePort, handler.readPort, handler.clearPort = write_port, read_port, clear_port
 
 
+@pytest.fixture(autouse=True)
+def ctrl_c_raises():
+    """Ctrl-C raises KeyboardInterrupt, as in a terminal, even when the test run itself was
+    started with SIGINT ignored (a background job of a non-interactive shell)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.fixture
 def emulator():
     with DynamixelEmulator(ids=(1,), speed_factor=10.0) as emu:

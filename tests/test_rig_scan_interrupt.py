@@ -24,7 +24,7 @@ from plantsim.scan.config import OutputOptions, PlantOptions, RunConfig
 from plantsim.scan.journal import read_journal
 from plantsim.scan.pipeline import journal_path_for, run_scan
 from plantsim.scan.schedule import StepScan
-from test_dxl_safety import FAST, Tripwire, no_sleep, torque_on_in_emulator
+from test_dxl_safety import FAST, Tripwire, ctrl_c_raises, no_sleep, torque_on_in_emulator  # noqa: F401
 
 
 @pytest.fixture
