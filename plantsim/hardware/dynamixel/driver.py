@@ -241,6 +241,11 @@ class DynamixelTurntable:
                     raise ServoCommunicationError(str(lost)) from None
                 _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
                 self.resync(raise_on_failure=False)
+                if self._port is None:  # the port vanished while the status was awaited
+                    raise ServoCommunicationError(
+                        f"{what} on {self.port_name} ID {self.dxl_id}: the port failed after a lost status; "
+                        f"the adapter was unplugged or the port closed. {_CHECKLIST} Then call connect() again."
+                    ) from None
         raise AssertionError("unreachable")
 
     def _mark_unsynced(self) -> None:

@@ -21,10 +21,14 @@ time-based profile), Bus Watchdog and the Velocity Limit cap on the profile are 
 emulated; REBOOT is instantaneous.
 
 Timing: the SDK waits about 34 ms for a status. The emulator answers in about 1 ms,
-but on a machine loaded by other processes a status can occasionally miss that
-window, as on a noisy bus; :class:`~plantsim.dynamixel.driver.DynamixelTurntable`'s
-``retries`` covers it. Run the emulator in its own process (``plantsim emulator``)
-for the most faithful timing.
+but on a machine whose cores are busy its thread can be kept waiting longer than that
+by the scheduler. Tests therefore (a) give the driver a longer status timeout
+(``DynamixelTurntable(status_timeout_s=0.5)``, or ``driver.port_handler`` for the raw
+SDK), which costs nothing while replies come, and (b) schedule faults on the
+emulator's simulated clock (:meth:`DynamixelEmulator.call_at`), not on wall-clock
+timers: simulated time advances only with the physics, so a fault lands at the same
+point of a move however late the emulator runs. Run the emulator in its own process
+(``plantsim emulator``) for the most faithful timing.
 
 Usage::
 
@@ -358,6 +362,14 @@ class DynamixelEmulator:
     def __exit__(self, *exc) -> None:
         self.stop()
 
+    def _close_master(self) -> None:
+        if self._master is not None:
+            try:
+                os.close(self._master)
+            except OSError:
+                pass
+            self._master = None
+
     def _close_fds(self) -> None:
         for fd in (self._master, self._slave):
             if fd is not None:
@@ -498,7 +510,10 @@ class DynamixelEmulator:
         finally:
             if self._disconnect.is_set() or not self._stop.is_set():
                 _log.info("Dynamixel emulator on %s disconnected", self.port_path)
-                self._close_fds()
+                # Only the master: the emulator's own slave fd stays open until stop(),
+                # so the kernel cannot hand this pty's number to another program while
+                # a client may still try to reopen the path (it finds no such file).
+                self._close_master()
 
     def _serve(self, packet: protocol.Packet) -> None:
         if packet.is_status:
