@@ -22,11 +22,13 @@ def data_path(relative: str) -> Path:
         f"{_PACKAGE_DIR.parent}; reinstall plantsim")
 
 
-BUNDLED_PLANTS = ("maize", "wheat")
+# The bundled meshes: two procedural plants and the calibration target
+# (plantsim.plant.target), all metres, Z up.
+BUNDLED_PLANTS = ("maize", "wheat", "calibration-target")
 
 
 def bundled_plant_path(name: str) -> Path:
-    """Path of a bundled plant mesh ("maize" or "wheat"), metres, Z up."""
+    """Path of a bundled mesh ("maize", "wheat" or "calibration-target"), metres, Z up."""
     if name not in BUNDLED_PLANTS:
         raise ValueError(f"unknown bundled plant {name!r}; choose one of {', '.join(BUNDLED_PLANTS)}")
     return data_path(f"assets/{name}.stl")

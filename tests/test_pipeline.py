@@ -358,3 +358,47 @@ def test_dynamics_settings_reach_the_physics(box):
                                 turntable=TurntableOptions(physics="dynamic", dynamics=dyn)), plant=box)
     assert result.parts["turntable"]["dynamics"]["jitter"]["backlash_deg"] == 0.2
     assert "max_table_minus_shaft_rad" in result.diagnostics
+
+
+# --- cheap checks before long work ----------------------------------------------------------
+
+@pytest.mark.parametrize("data, message", [
+    ({"scan": {"step_deg": 1e-300}}, r"step_deg = 1e-300 makes 3.6e\+302 lines over 360 deg, more than 360,000; "
+                                     r"use step_deg >= 0.001"),
+    ({"scan": {"sweep_deg": 720, "step_deg": 1}}, r"sweep_deg must be at most 360 \(one turn; more scans every angle"),
+    ({"rig": {"lidar_distance_m": 1e6}}, r"the LiDAR stands 1e\+06 m from the axis.*beyond its range_max_m \(5.6 m\)"),
+    ({"scan": {"step_deg": 0.002}, "lidar": {"preset": "sick-lms111"}},
+     r"180,000 lines x 1081 beams = 194,580,000 beams, more than 100,000,000.*use a larger --step-deg"),
+])
+def test_impossible_scans_are_refused_before_any_work(data, message):
+    with pytest.raises(ConfigError, match=message):
+        plan_scan(config_from_dict(data))
+
+
+def test_a_one_triangle_plant_scans():
+    plant = plant_from_arrays(np.array([[0.0, 0, 0], [0.1, 0, 0], [0, 0.1, 0.1]]), np.array([[0, 1, 2]]))
+    result = run_scan(RunConfig(sensor="ideal", scan=StepScan(step_deg=30)), plant=plant)
+    assert result.cloud.counts_by_class()["plant"] > 0
+
+
+def test_a_plant_the_lidar_cannot_see_is_an_error_and_nothing_is_written(tmp_path, capsys):
+    mesh = trimesh.creation.box(extents=[0.02, 0.02, 0.02])
+    mesh.apply_translation([0.0, 0.0, 8.0])  # 8 m above the disk: beyond the URG-04LX's 5.6 m
+    path = tmp_path / "high.stl"
+    mesh.export(path)
+    out = tmp_path / "c.las"
+    assert main(["scan", str(path), "--placement", "none", "--step-deg", "90", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no beam hit the plant" in err[0] and "nothing was written" in err[0]
+    assert not out.exists()
+
+
+def test_wrong_types_at_the_python_entry_point_are_named():
+    with pytest.raises(TypeError, match="config must be a plantsim.RunConfig, got dict"):
+        run_scan({"scan": {"step_deg": 1}})
+    with pytest.raises(TypeError, match="plant must be a plantsim.PlantMesh"):
+        run_scan(RunConfig(), plant="plant.stl")
+    with pytest.raises(TypeError, match="turntable must implement plantsim.Turntable"):
+        run_scan(RunConfig(), turntable=object())
+    with pytest.raises(TypeError, match="RunConfig.scan must be a plantsim.StepScan, got float"):
+        RunConfig(scan=1.0)

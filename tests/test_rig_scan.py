@@ -310,9 +310,10 @@ def test_one_lost_reply_is_retried_and_the_scan_completes(tmp_path, emulator):
     assert result.raw.n_lines == 12
 
 
-def test_servo_refuses_more_than_one_turn(tmp_path, emulator):
-    config = RunConfig(scan=StepScan(step_deg=30, sweep_deg=720), output=OutputOptions(path=str(tmp_path / "x.ply")))
+def test_servo_refuses_angles_beyond_its_position_limits(tmp_path, emulator):
+    # The last line of 0.04-degree steps is at 359.96 deg, tick 4096; position mode ends at tick 4095.
+    config = RunConfig(scan=StepScan(step_deg=0.04), output=OutputOptions(path=str(tmp_path / "x.ply")))
     with ServoTurntable.connect(emulator.port_path, **FAST) as table:
-        with pytest.raises(ValueError, match=r"angles span \[0.00, 690.00\] deg.*limits are \[0.00, 359.91\] deg"):
+        with pytest.raises(ValueError, match=r"angles span \[0.00, 359.96\] deg.*limits are \[0.00, 359.91\] deg"):
             run_rig_scan(config, table)
     assert not journal_path_for(config.output.path).exists()

@@ -105,7 +105,7 @@ def test_sweep_validation_names_the_problem():
     with pytest.raises(ValueError, match=r"timestep_s applies to scans with the servo's physics only"):
         study.Sweep(plants=("maize",), grid=(("timestep_s", (1e-3,)),))
     study.Sweep(plants=("maize",), grid=(("rpm", (1.0,)),), base={"turntable": {"mode": "continuous"}})
-    with pytest.raises(FileNotFoundError, match=r"plant must be a bundled plant \(maize, wheat\) or a mesh"):
+    with pytest.raises(FileNotFoundError, match=r"plant must be a bundled plant \(maize, wheat, calibration-target\) or a mesh"):
         study.plant_overrides("nowhere.stl")
     with pytest.raises(ValueError, match=r"run 0 .* is not a valid configuration: .*step_deg must divide"):
         study.run_study(study.Sweep(plants=("maize",), grid=(("step_deg", (7.0,)),)))

@@ -79,19 +79,19 @@ def resolve_config(args: argparse.Namespace, overrides: dict):
 
 
 def cmd_scan(args: argparse.Namespace) -> int:
-    from plantsim.cloud.export import check_output_path
     from plantsim.scan.plan import plan_scan
-    from plantsim.scan.pipeline import run_scan, write_result
+    from plantsim.scan.pipeline import check_outputs, check_plant_seen, run_scan, write_result
 
     t0 = time.perf_counter()
     config = resolve_config(args, scan_overrides(args))
-    check_output_path(config.output.path)  # Fail before any work, not after it.
+    check_outputs(config, config_path=args.config)  # Fail before any work, not after it.
     plan_scan(config)
     progress, close = _progress_bar("scan")
     try:
         result = run_scan(config, progress=progress)
     finally:
         close()
+    check_plant_seen(result)
     if args.evaluate:
         from plantsim.scan.pipeline import with_evaluation
 
@@ -174,6 +174,15 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     raw, metadata = read_raw(args.raw)
     if args.angle_mode:
         raw = raw.replace(angle_mode=args.angle_mode)
+    if args.rig:
+        import math
+
+        from plantsim.scan.config import config_from_dict, load_toml
+        from plantsim.scan.raw import lidar_pose_of
+
+        rig = config_from_dict({"rig": load_toml(args.rig).get("rig", {})}).rig
+        raw = raw.replace(lidar_pose=lidar_pose_of(rig.T_base_lidar()),
+                          encoder_offset_rad=math.radians(rig.encoder_offset_deg))
     cloud = reconstruct(raw)
     if args.plant_only:
         if raw.true_turntable_angle_rad is None:
@@ -187,6 +196,36 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
     write_cloud(path, cloud, sidecar=sidecar)
     print(f"wrote {len(cloud):,} points from {raw.n_lines} lines x {raw.n_beams} beams ({raw.angle_mode} "
           f"angles) to {path}")
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from plantsim.cloud.bag import read_raw
+    from plantsim.cloud.calibration import PARAMETERS, calibrate, rig_toml
+    from plantsim.cloud.export import write_atomic
+    from plantsim.rig.geometry import RigGeometry
+    from plantsim.scan.config import config_from_dict, load_toml
+
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        raise FileNotFoundError(f"output folder does not exist: {out.parent}")
+    raw, info = read_raw(args.raw)
+    if args.start:
+        start = config_from_dict({"rig": load_toml(args.start).get("rig", {})}).rig
+    elif "rig" in info.get("config", {}):
+        start = config_from_dict({"rig": info["config"]["rig"]}).rig
+    else:
+        start = RigGeometry()
+    result = calibrate(raw, nominal=start)
+    write_atomic(out, rig_toml(result, source=str(args.raw)).encode("utf-8"))
+    for name in PARAMETERS:
+        unit, factor = ("mm", 1e3) if name.endswith("_m") else ("deg", 1.0)
+        print(f"{name:20s} {getattr(result.rig, name) * factor:10.4f} {unit:3s} +- "
+              f"{result.std[name] * factor:.3g}  (start {getattr(start, name) * factor:.4g})")
+    print(f"{result.n_kept:,} of {result.n_points:,} returns on the target, RMS {result.rms_m * 1e3:.2f} mm; "
+          f"wrote {out}")
     return 0
 
 
@@ -230,7 +269,24 @@ def build_parser() -> argparse.ArgumentParser:
                              help="only points the ground truth says hit the plant (simulated bags)")
     reconstruct.add_argument("--angle-mode", choices=["interpolate", "line", "commanded"],
                              help="override the bag's rule for the turntable angle of each beam")
+    reconstruct.add_argument("--rig", metavar="TOML",
+                             help="a [rig] section (e.g. from plantsim calibrate) whose geometry and encoder offset "
+                                  "replace the bag's")
     reconstruct.set_defaults(func=cmd_reconstruct)
+
+    calibrate = sub.add_parser(
+        "calibrate", help="fit the rig geometry to a raw scan of the calibration target",
+        description="Estimate the rig geometry (LiDAR distance from the axis, height above the disk, tilt, yaw, "
+                    "roll, and the encoder's offset) from a raw scan (--raw, or a rig's bag) of the calibration "
+                    "target (plantsim/plant/target.py says how to build it; simulate it with [plant] bundled = "
+                    "\"calibration-target\"), and write a [rig] section for plantsim scan --config or "
+                    "plantsim reconstruct --rig.")
+    calibrate.add_argument("raw", metavar="DIR", help="the bag folder")
+    calibrate.add_argument("-o", "--output", required=True, help="the [rig] TOML to write")
+    calibrate.add_argument("--start", metavar="TOML",
+                           help="a configuration whose [rig] is the starting guess (default: the bag's own "
+                                "configuration, else plantsim's default rig)")
+    calibrate.set_defaults(func=cmd_calibrate)
 
     from plantsim.cli.rig import add_rig_commands
     from plantsim.cli.study import add_study_command

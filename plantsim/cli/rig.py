@@ -86,10 +86,9 @@ def run_rig_scan(args: argparse.Namespace) -> int:
     import time
 
     from plantsim.cli.app import _progress_bar, resolve_config, scan_overrides, summary_line
-    from plantsim.cloud.export import check_output_path
     from plantsim.errors import HardwareError, ScanInterruptedError, UnsafeStopError
     from plantsim.hardware.dynamixel.turntable import ServoTurntable
-    from plantsim.scan.pipeline import journal_path_for, run_scan, write_result
+    from plantsim.scan.pipeline import check_outputs, check_plant_seen, journal_path_for, run_scan, write_result
     from plantsim.scan.plan import plan_scan
 
     t0 = time.perf_counter()
@@ -97,7 +96,7 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         raise HardwareError("a real URG LiDAR is not available in rig scans yet: plantsim's rig scan "
                             "casts the simulated LiDAR at the servo's reported angle; use --lidar sim")
     config = resolve_config(args, scan_overrides(args))
-    output = check_output_path(config.output.path)  # fail before the servo moves
+    output = check_outputs(config, config_path=args.config)  # fail before the servo moves
     plan_scan(config, hardware_turntable=True)  # refuse unused settings before the servo moves
     journal = journal_path_for(output)
     if journal.exists() and not args.resume:
@@ -133,6 +132,7 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         return _interrupt_exit_code(exc)
     finally:
         close_bar()
+    check_plant_seen(result)
     path = write_result(result, keep_journal=args.keep_journal)
     print(summary_line(result, path, time.perf_counter() - t0))
     return 0

@@ -31,7 +31,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -103,7 +102,7 @@ def _transform(store, ns: int, parent: str, child: str, translation, quat_xyzw):
 def write_raw(path: str | os.PathLike, raw: RawScan, *, metadata: dict | None = None) -> Path:
     """Writes a raw record as a ROS 2 bag (MCAP storage) in the folder ``path``.
 
-    The bag is written beside ``path`` and moved into place when complete; an
+    The bag is built beside ``path`` and moved into place when complete; an
     existing bag folder at ``path`` is replaced, anything else there is refused.
 
     Args:
@@ -115,79 +114,88 @@ def write_raw(path: str | os.PathLike, raw: RawScan, *, metadata: dict | None = 
       FileExistsError: ``path`` exists and is not a bag folder.
       FileNotFoundError: its parent folder does not exist.
     """
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    from plantsim.cloud.outputs import OutputSet
 
+    path = check_bag_path(path)
+    with OutputSet() as outputs:
+        write_bag(outputs.stage_folder(path), raw, metadata=metadata)
+        outputs.commit()
+    return path
+
+
+def check_bag_path(path: str | os.PathLike) -> Path:
+    """The bag folder ``path``, checked: its parent exists, and it is new or an old bag.
+
+    Raises:
+      FileExistsError: ``path`` exists and is not a bag folder.
+      FileNotFoundError: its parent folder does not exist.
+    """
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output folder does not exist: {path.parent}")
     if path.exists() and not (path / "metadata.yaml").is_file():
         raise FileExistsError(f"{path} exists and is not a ROS 2 bag folder: choose another --raw folder")
-    # Written inside a private folder beside the target, so that the storage
-    # file already has its final name (<name>.mcap) when the bag is moved in.
-    work = path.parent / f".{path.name}.plantsim-tmp-{os.getpid()}"
-    shutil.rmtree(work, ignore_errors=True)
-    work.mkdir()
-    tmp = work / path.name
+    return path
+
+
+def write_bag(path: Path, raw: RawScan, *, metadata: dict | None = None) -> None:
+    """Writes the bag at ``path``, which must not exist (see :func:`write_raw`)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
     store = _typestore()
     t = store.types
     start = int(raw.start_unix_ns)
     grid = raw.grid
     ranges = laser_ranges(raw)
-    try:
-        with Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-            def conn(topic, msgtype):
-                return writer.add_connection(topic, msgtype, typestore=store)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        def conn(topic, msgtype):
+            return writer.add_connection(topic, msgtype, typestore=store)
 
-            info_c = conn(INFO_TOPIC, "std_msgs/msg/String")
-            static_c = conn("/tf_static", "tf2_msgs/msg/TFMessage")
-            scan_c = conn(SCAN_TOPIC, "sensor_msgs/msg/LaserScan")
-            joint_c = conn(JOINT_TOPIC, "sensor_msgs/msg/JointState")
-            tf_c = conn("/tf", "tf2_msgs/msg/TFMessage")
-            truth_c = conn(TRUTH_TOPIC, BEAM_TRUTH_TYPE) if raw.true_turntable_angle_rad is not None else None
+        info_c = conn(INFO_TOPIC, "std_msgs/msg/String")
+        static_c = conn("/tf_static", "tf2_msgs/msg/TFMessage")
+        scan_c = conn(SCAN_TOPIC, "sensor_msgs/msg/LaserScan")
+        joint_c = conn(JOINT_TOPIC, "sensor_msgs/msg/JointState")
+        tf_c = conn("/tf", "tf2_msgs/msg/TFMessage")
+        truth_c = conn(TRUTH_TOPIC, BEAM_TRUTH_TYPE) if raw.true_turntable_angle_rad is not None else None
 
-            info = {"plantsim_raw": 1, "angle_mode": raw.angle_mode, "start_unix_ns": start,
-                    "commanded_rad": [None if not np.isfinite(a) else float(a) for a in raw.commanded_rad],
-                    **(metadata or {})}
-            messages = [(start, info_c, t["std_msgs/msg/String"](data=json.dumps(info)), "std_msgs/msg/String")]
-            translation, quat = raw.lidar_pose
-            messages.append((start, static_c, t["tf2_msgs/msg/TFMessage"](
-                transforms=[_transform(store, start, BASE_FRAME, LIDAR_FRAME, translation, quat)]),
-                "tf2_msgs/msg/TFMessage"))
-            for ns, angle in zip(raw.encoder_stamp_ns, raw.encoder_angle_rad):
-                stamp = start + int(ns)
-                messages.append((stamp, joint_c, t["sensor_msgs/msg/JointState"](
-                    header=_header(store, stamp, BASE_FRAME), name=[TURNTABLE_JOINT],
-                    position=np.array([angle], dtype=np.float64), velocity=np.zeros(0), effort=np.zeros(0)),
-                    "sensor_msgs/msg/JointState"))
-                half = angle / 2
-                messages.append((stamp, tf_c, t["tf2_msgs/msg/TFMessage"](transforms=[_transform(
-                    store, stamp, BASE_FRAME, TURNTABLE_FRAME, (0.0, 0.0, 0.0),
-                    (0.0, 0.0, np.sin(half), np.cos(half)))]), "tf2_msgs/msg/TFMessage"))
-            no_intensity = np.zeros(0, dtype=np.float32)
-            for k in range(raw.n_lines):
-                stamp = start + int(raw.line_stamp_ns[k])
-                messages.append((stamp, scan_c, t["sensor_msgs/msg/LaserScan"](
-                    header=_header(store, stamp, LIDAR_FRAME), angle_min=grid.angle_min_rad,
-                    angle_max=float(np.float32(grid.beam_angles_rad()[-1])),
-                    angle_increment=grid.angle_increment_rad, time_increment=grid.time_increment_s,
-                    scan_time=grid.scan_period_s, range_min=grid.range_min_m, range_max=grid.range_max_m,
-                    ranges=ranges[k], intensities=no_intensity if raw.intensity is None else
-                    raw.intensity[k].astype(np.float32)), "sensor_msgs/msg/LaserScan"))
-                if truth_c is not None:
-                    messages.append((stamp, truth_c, t[BEAM_TRUTH_TYPE](
-                        header=_header(store, stamp, LIDAR_FRAME),
-                        turntable_angle_rad=raw.true_turntable_angle_rad[k].astype(np.float64),
-                        status=raw.status[k].astype(np.uint8), hit_class=raw.hit_class[k].astype(np.uint8),
-                        geom_id=raw.geom_id[k].astype(np.int32)), BEAM_TRUTH_TYPE))
-            messages.sort(key=lambda m: m[0])  # log order is time order
-            for stamp, connection, msg, msgtype in messages:
-                writer.write(connection, stamp, store.serialize_cdr(msg, msgtype))
-        if path.exists():
-            shutil.rmtree(path)
-        os.replace(tmp, path)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-    return path
+        info = {"plantsim_raw": 1, "angle_mode": raw.angle_mode, "start_unix_ns": start,
+                "encoder_offset_rad": float(raw.encoder_offset_rad),
+                "commanded_rad": [None if not np.isfinite(a) else float(a) for a in raw.commanded_rad],
+                **(metadata or {})}
+        messages = [(start, info_c, t["std_msgs/msg/String"](data=json.dumps(info)), "std_msgs/msg/String")]
+        translation, quat = raw.lidar_pose
+        messages.append((start, static_c, t["tf2_msgs/msg/TFMessage"](
+            transforms=[_transform(store, start, BASE_FRAME, LIDAR_FRAME, translation, quat)]),
+            "tf2_msgs/msg/TFMessage"))
+        for ns, angle in zip(raw.encoder_stamp_ns, raw.encoder_angle_rad):
+            stamp = start + int(ns)
+            messages.append((stamp, joint_c, t["sensor_msgs/msg/JointState"](
+                header=_header(store, stamp, BASE_FRAME), name=[TURNTABLE_JOINT],
+                position=np.array([angle], dtype=np.float64), velocity=np.zeros(0), effort=np.zeros(0)),
+                "sensor_msgs/msg/JointState"))
+            half = angle / 2
+            messages.append((stamp, tf_c, t["tf2_msgs/msg/TFMessage"](transforms=[_transform(
+                store, stamp, BASE_FRAME, TURNTABLE_FRAME, (0.0, 0.0, 0.0),
+                (0.0, 0.0, np.sin(half), np.cos(half)))]), "tf2_msgs/msg/TFMessage"))
+        no_intensity = np.zeros(0, dtype=np.float32)
+        for k in range(raw.n_lines):
+            stamp = start + int(raw.line_stamp_ns[k])
+            messages.append((stamp, scan_c, t["sensor_msgs/msg/LaserScan"](
+                header=_header(store, stamp, LIDAR_FRAME), angle_min=grid.angle_min_rad,
+                angle_max=float(np.float32(grid.beam_angles_rad()[-1])),
+                angle_increment=grid.angle_increment_rad, time_increment=grid.time_increment_s,
+                scan_time=grid.scan_period_s, range_min=grid.range_min_m, range_max=grid.range_max_m,
+                ranges=ranges[k], intensities=no_intensity if raw.intensity is None else
+                raw.intensity[k].astype(np.float32)), "sensor_msgs/msg/LaserScan"))
+            if truth_c is not None:
+                messages.append((stamp, truth_c, t[BEAM_TRUTH_TYPE](
+                    header=_header(store, stamp, LIDAR_FRAME),
+                    turntable_angle_rad=raw.true_turntable_angle_rad[k].astype(np.float64),
+                    status=raw.status[k].astype(np.uint8), hit_class=raw.hit_class[k].astype(np.uint8),
+                    geom_id=raw.geom_id[k].astype(np.int32)), BEAM_TRUTH_TYPE))
+        messages.sort(key=lambda m: m[0])  # log order is time order
+        for stamp, connection, msg, msgtype in messages:
+            writer.write(connection, stamp, store.serialize_cdr(msg, msgtype))
 
 
 def read_raw(path: str | os.PathLike) -> tuple[RawScan, dict]:
@@ -272,5 +280,5 @@ def read_raw(path: str | os.PathLike) -> tuple[RawScan, dict]:
         if has_truth else None,
         hit_class=np.stack([np.asarray(m.hit_class, dtype=np.uint8) for m in truth]) if has_truth else None,
         geom_id=np.stack([np.asarray(m.geom_id, dtype=np.int32) for m in truth]) if has_truth else None,
-        start_unix_ns=start)
+        start_unix_ns=start, encoder_offset_rad=float(info.get("encoder_offset_rad", 0.0)))
     return raw, info

@@ -122,6 +122,12 @@ def _read_arrays(path: Path) -> tuple[np.ndarray, np.ndarray]:
         arrays = binary_stl_arrays(data)
         if arrays is not None:
             return arrays
+        looks_ascii = data[:5].lower() == b"solid" and b"facet" in data[:4096].lower()
+        if not looks_ascii and len(data) >= 84:
+            n = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+            raise MeshError(f"{path} is not a readable STL: not ASCII (no 'solid ... facet'), and as a binary STL "
+                            f"its header says {n:,} triangles while the file holds {(len(data) - 84) / 50:,.1f} "
+                            f"({len(data):,} bytes): it is truncated or damaged; export it again")
     import trimesh  # Imported here: it is the slowest import on the CLI's path.
 
     try:

@@ -49,6 +49,11 @@ class RigGeometry:
       disk_thickness_m: turntable disk thickness (its top is at z = 0).
       pedestal_height_m: height of the servo housing under the disk; the bench
         top is this far below the disk's underside.
+      encoder_offset_deg: what the turntable's encoder reads with the table at
+        angle 0 (its zero is not the plant's): the reconstruction subtracts it
+        from every reading and commanded angle. A simulated encoder reads it too,
+        so it changes no simulated cloud; on a real rig it is what calibration
+        (:func:`plantsim.cloud.calibration.calibrate`) measures.
     """
 
     lidar_distance_m: float = 0.35
@@ -59,6 +64,7 @@ class RigGeometry:
     disk_radius_m: float = 0.10
     disk_thickness_m: float = 0.01
     pedestal_height_m: float = 0.07
+    encoder_offset_deg: float = 0.0
 
     def __post_init__(self):
         for field in dataclasses.fields(self):

@@ -97,6 +97,10 @@ def _set_rig_geometry(spec: mujoco.MjSpec, rig: RigGeometry, T_base_lidar: np.nd
 
 def _add_plant(spec: mujoco.MjSpec, plant: PlantMesh, areal_density_kg_m2: float) -> None:
     vertices_turntable = plant.vertices_turntable
+    if len(vertices_turntable) < 4:
+        # MuJoCo wants at least 4 vertices in a mesh; a lone triangle gets an unused
+        # copy of its centroid, which no face references and no ray can hit.
+        vertices_turntable = np.vstack([vertices_turntable, vertices_turntable.mean(axis=0)])
     mesh = spec.add_mesh(name="plant", uservert=vertices_turntable.ravel(),
                          userface=plant.faces.ravel())
     # Thin open leaves have no volume: MuJoCo must not try a volumetric inertia.

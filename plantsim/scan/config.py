@@ -110,6 +110,11 @@ class RunConfig:
     explicit: frozenset = frozenset()
 
     def __post_init__(self):
+        for name, cls in (("plant", PlantOptions), ("lidar", LidarSpec), ("rig", RigGeometry), ("scan", StepScan),
+                          ("output", OutputOptions), ("turntable", TurntableOptions), ("sensor_model", SensorModel)):
+            if not isinstance(getattr(self, name), cls):
+                raise TypeError(f"RunConfig.{name} must be a plantsim.{cls.__name__}, got "
+                                f"{type(getattr(self, name)).__name__}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
         if self.threads is not None and (isinstance(self.threads, bool) or not isinstance(self.threads, int)

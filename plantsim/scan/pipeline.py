@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import logging
 import os
 import platform
@@ -102,8 +103,13 @@ def load_configured_plant(config: RunConfig) -> PlantMesh:
     options = config.plant
     path = options.mesh if options.mesh else bundled_plant_path(options.bundled)
     T = None if options.T_turntable_mesh is None else np.array(options.T_turntable_mesh)
-    return load_plant(path, units=options.units, up=options.up, placement=options.placement,
-                      T_turntable_mesh=T)
+    placement = options.placement
+    if not options.mesh and options.bundled == "calibration-target" and "plant.placement" not in config.explicit \
+            and placement == "base":
+        # The target stands where it is built (plantsim.plant.target); "base" would centre its
+        # footprint, fin and all, and move the drum off the axis.
+        placement = "none"
+    return load_plant(path, units=options.units, up=options.up, placement=placement, T_turntable_mesh=T)
 
 
 def journal_path_for(output: str | os.PathLike) -> Path:
@@ -174,6 +180,7 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
       SimulationError: the turntable physics cannot run or diverged.
       ScanInterruptedError, JournalError: see :func:`plantsim.scan.session.run_session`.
     """
+    _check_types(config, plant, turntable)
     plan = plan_scan(config, hardware_turntable=turntable is not None)
     for note in plan.notes:
         log.warning("%s", note)
@@ -207,7 +214,8 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
         record = _motion(config, plan, dscene, grid, rng)
         timings["turntable"] = time.perf_counter() - t
         t = time.perf_counter()
-        raw = simulate_lines(source, record, grid, plan.angle_mode, rng, progress=progress)
+        raw = simulate_lines(source, record, grid, plan.angle_mode, rng, progress=progress,
+                             encoder_offset_rad=math.radians(config.rig.encoder_offset_deg))
         diagnostics = motions.physics_diagnostics(record, raw.time_s, raw.true_turntable_angle_rad,
                                                   raw.turntable_angle_rad)
     else:
@@ -221,6 +229,7 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
                                    first_beam_s=float(config.lidar.beam_time_offsets_s()[0]),
                                    identity=scan_identity(config, plant, turntable, source),
                                    angle_mode=plan.angle_mode, resume=resume, settle_s=settle_s,
+                                   encoder_offset_rad=math.radians(config.rig.encoder_offset_deg),
                                    progress=progress)
         lines_resumed = journal.lines_resumed
         error = raw.encoder_angle_rad - raw.commanded_rad
@@ -235,8 +244,14 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
 
 
 def simulate_lines(source: SimulatedLidar, record: motions.MotionRecord, grid: BeamGrid, angle_mode: str,
-                   rng: np.random.Generator, *, progress: Progress | None = None) -> RawScan:
+                   rng: np.random.Generator, *, progress: Progress | None = None,
+                   encoder_offset_rad: float = 0.0) -> RawScan:
     """The simulated LiDAR takes every line of a simulated motion, each beam at its own true angle.
+
+    Args:
+      encoder_offset_rad: what the simulated encoder reads at turntable angle 0
+        (added to its readings and the commanded angles; the reconstruction
+        subtracts it again).
 
     Returns:
       The raw record (ground truth included).
@@ -248,7 +263,8 @@ def simulate_lines(source: SimulatedLidar, record: motions.MotionRecord, grid: B
     return RawScan(grid=grid, line_stamp_ns=record.line_stamp_ns, range_m=lines.range_m,
                    status=lines.status, intensity=lines.intensity,
                    encoder_stamp_ns=np.round(record.readings.time_s * 1e9).astype(np.int64),
-                   encoder_angle_rad=record.readings.angle_rad, commanded_rad=record.commanded_rad,
+                   encoder_angle_rad=record.readings.angle_rad + encoder_offset_rad,
+                   commanded_rad=record.commanded_rad + encoder_offset_rad, encoder_offset_rad=encoder_offset_rad,
                    angle_mode=angle_mode, lidar_pose=lidar_pose_of(source.scene.T_base_lidar),
                    true_turntable_angle_rad=np.broadcast_to(
                        true_rad if true_rad.ndim == 2 else true_rad[:, None], shape).copy(),
@@ -284,6 +300,37 @@ def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, model:
     record = motions.kinematic_step(schedule.angles_rad(), schedule.step_time_s, timing, EncoderConfig.ideal(),
                                     rng)
     return simulate_lines(source, record, grid, "interpolate", rng, progress=progress)
+
+
+def _check_types(config, plant, turntable) -> None:
+    from plantsim.turntable.table import Turntable
+
+    if not isinstance(config, RunConfig):
+        raise TypeError(f"config must be a plantsim.RunConfig, got {type(config).__name__}; build one with "
+                        "plantsim.RunConfig(...) or plantsim.config_from_dict(toml_data)")
+    if plant is not None and not isinstance(plant, PlantMesh):
+        raise TypeError(f"plant must be a plantsim.PlantMesh (plantsim.load_plant or plant_from_arrays), got "
+                        f"{type(plant).__name__}")
+    if turntable is not None and not isinstance(turntable, Turntable):
+        raise TypeError(f"turntable must implement plantsim.Turntable (move_to, read_angle_rad, check_angles, "
+                        f"describe, identity, close), got {type(turntable).__name__}")
+
+
+def check_plant_seen(result: ScanResult) -> None:
+    """Raises ValueError when no beam hit the plant: the rig cannot see it, so the cloud would say nothing.
+
+    The message gives the beam counts and where to look.
+    """
+    plant_hits = int((result.raw.hit_class == 1).sum())
+    if result.plant.n_faces and plant_hits == 0:
+        counts = result.raw.counts()["by_status"]
+        lo, hi = result.plant.bounds_turntable()
+        raise ValueError(
+            f"no beam hit the plant ({result.raw.status.size:,} beams: {counts['ok']:,} on the rig, "
+            f"{counts['no_echo']:,} no echo, {counts['too_near']:,} too near); the plant spans z "
+            f"{lo[2]:.3g}..{hi[2]:.3g} m and the LiDAR stands {result.config.rig.lidar_distance_m:g} m "
+            f"from the axis at {result.config.rig.lidar_height_m:g} m: check [rig] and the plant's units and "
+            f"placement (nothing was written)")
 
 
 def _describe_schedule(config: RunConfig, plan: ScanPlan, raw: RawScan) -> dict:
@@ -383,25 +430,69 @@ def sidecar(result: ScanResult) -> dict:
     return out
 
 
-def write_result(result: ScanResult, path: str | Path | None = None, *, keep_journal: bool = False) -> Path:
-    """Writes the cloud, its sidecar and (when configured) the raw record as a ROS 2 bag.
+def check_outputs(config: RunConfig, *, config_path: str | os.PathLike | None = None,
+                  journal_path: str | os.PathLike | None = None) -> Path:
+    """Checks, before any work, that a run's outputs can be written and overwrite no input.
 
-    The bag is written first, then the cloud and the sidecar, each atomically; a
-    journal (rig scans) is removed only once all are written, unless ``keep_journal``.
+    Returns:
+      The cloud's path.
+
+    Raises:
+      ValueError, FileNotFoundError, FileExistsError: naming the path and the fix.
     """
-    from plantsim.cloud.export import check_output_path, write_cloud
+    from plantsim.cloud.export import check_output_path, sidecar_path
+    from plantsim.cloud.outputs import refuse_inputs
 
-    path = check_output_path(path or result.config.output.path)
-    if result.config.output.raw:
-        from plantsim.cloud.bag import write_raw
+    path = check_output_path(config.output.path)
+    outputs = {"cloud": path, "sidecar": sidecar_path(path)}
+    if config.output.raw:
+        from plantsim.cloud.bag import check_bag_path
 
+        outputs["raw record"] = check_bag_path(config.output.raw)
+    inputs = {"plant mesh": config.plant.mesh, "configuration file": config_path,
+              "scan journal": journal_path if journal_path is not None else journal_path_for(path)}
+    refuse_inputs(outputs, inputs)
+    if config.output.raw and Path(config.output.raw).resolve() in (path.resolve().parent, *path.resolve().parents):
+        raise ValueError(f"the raw record folder {config.output.raw} would hold the cloud {path}; choose "
+                         "another --raw folder")
+    return path
+
+
+def write_result(result: ScanResult, path: str | Path | None = None, *, keep_journal: bool = False) -> Path:
+    """Writes the cloud, its sidecar and (when configured) the raw record as a ROS 2 bag, as a unit.
+
+    Everything is first written in full beside its target, then all are moved in
+    together (:class:`plantsim.cloud.outputs.OutputSet`): a full disk, an error or
+    Ctrl-C leaves the earlier outputs as they were. A journal (rig scans) is
+    removed only once all are in place, unless ``keep_journal``.
+    """
+    import json
+
+    from plantsim.cloud.export import _json_default, encode_cloud, sidecar_path
+    from plantsim.cloud.outputs import OutputSet
+
+    config = result.config
+    if path is not None:
+        config = config.replace(output=dataclasses.replace(config.output, path=str(path)))
+    path = check_outputs(config, journal_path=result.journal_path if result.journal_path else None)
+    with OutputSet() as outputs:
+        if config.output.raw:
+            from plantsim.cloud.bag import write_bag
+
+            t = time.perf_counter()
+            write_bag(outputs.stage_folder(config.output.raw), result.raw, metadata=bag_metadata(result))
+            result.timings_s["write_raw"] = time.perf_counter() - t
         t = time.perf_counter()
-        write_raw(result.config.output.raw, result.raw, metadata=bag_metadata(result))
-        result.timings_s["write_raw"] = time.perf_counter() - t
-    data = sidecar(result)
-    if result.journal_path is not None:
-        data["journal"]["kept"] = keep_journal
-    write_cloud(path, result.cloud, sidecar=data)
+        data = encode_cloud(path, result.cloud)
+        result.timings_s["encode"] = time.perf_counter() - t
+        outputs.stage_bytes(path, data)
+        side = sidecar(result)
+        side["output"] = str(path)
+        if result.journal_path is not None:
+            side["journal"]["kept"] = keep_journal
+        outputs.stage_bytes(sidecar_path(path),
+                            (json.dumps(side, indent=2, default=_json_default) + "\n").encode("utf-8"))
+        outputs.commit()
     if result.journal_path is not None and not keep_journal:
         result.journal_path.unlink(missing_ok=True)
     return path

@@ -13,6 +13,7 @@ from its default.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from plantsim.errors import ConfigError
@@ -27,6 +28,10 @@ REALISTIC_LIDAR_FIELDS = ("beam_divergence_rad", "beam_exit_diameter_m", "range_
 # [turntable] settings that only the servo's physics uses.
 PHYSICS_SCALARS = tuple(f.name for f in dataclasses.fields(TurntableDynamics)
                         if f.name not in ("servo", "jitter"))
+# Beams a scan may record: the raw record keeps about BYTES_PER_BEAM a beam (range,
+# status, intensity, hit class, geom, true angle) before the cloud and footprints.
+MAX_BEAMS = 100_000_000
+BYTES_PER_BEAM = 32
 STEP_ONLY_PHYSICS = ("settle_tolerance_rad", "settle_velocity_rad_s", "settle_timeout_s")
 CONTINUOUS_ONLY_PHYSICS = ("spinup_margin_s",)
 
@@ -153,6 +158,22 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False) -> ScanPla
         if wrong:
             raise ConfigError("[turntable] spinup_margin_s applies to continuous scans; remove it, or use "
                               "--mode continuous")
+
+    # --- what the rig can do ----------------------------------------------------
+    rig, lidar = config.rig, config.lidar
+    nearest_m = rig.lidar_distance_m - rig.disk_radius_m
+    if nearest_m > lidar.range_max_m:
+        raise ConfigError(f"the LiDAR stands {rig.lidar_distance_m:g} m from the axis, {nearest_m:g} m from the "
+                          f"disk's edge, beyond its range_max_m ({lidar.range_max_m:g} m): it would see nothing; "
+                          f"set [rig] lidar_distance_m below {lidar.range_max_m + rig.disk_radius_m:g}")
+    n_lines = (config.scan.n_lines if mode == "step" else
+               math.ceil(math.radians(config.scan.sweep_deg) / (tt.rpm * 2 * math.pi / 60 * lidar.scan_period_s)))
+    beams = n_lines * lidar.n_beams
+    if beams > MAX_BEAMS:
+        fix = ("a larger --step-deg" if mode == "step" else "a higher --rpm or a smaller --sweep-deg")
+        raise ConfigError(f"this scan has {n_lines:,} lines x {lidar.n_beams} beams = {beams:,} beams, more than "
+                          f"{MAX_BEAMS:,} (about {beams * BYTES_PER_BEAM / 2**30:.0f} GiB for the raw record alone): "
+                          f"use {fix}")
 
     # --- the turntable --------------------------------------------------------
     physics_keys = _physics_settings(config, mode)

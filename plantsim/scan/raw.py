@@ -111,6 +111,8 @@ class RawScan:
         along the beam (NONE for a real sensor).
       geom_id: (n_lines, n_beams) int32, MuJoCo geom id or -1.
       start_unix_ns: absolute time of the scan's start (0 for a simulated scan).
+      encoder_offset_rad: the encoder's reading at turntable angle 0; subtracted
+        from readings and commanded angles to give turntable angles.
     """
 
     grid: BeamGrid
@@ -127,6 +129,7 @@ class RawScan:
     hit_class: np.ndarray | None = None
     geom_id: np.ndarray | None = None
     start_unix_ns: int = 0
+    encoder_offset_rad: float = 0.0
 
     def __post_init__(self):
         if self.angle_mode not in ANGLE_MODES:
@@ -209,8 +212,8 @@ def believed_angles(raw: RawScan) -> np.ndarray:
     """
     shape = raw.range_m.shape
     if raw.angle_mode == "commanded":
-        return np.broadcast_to(raw.commanded_rad[:, None], shape).copy()
-    t_read, angle = raw.encoder_time_s, raw.encoder_angle_rad
+        return np.broadcast_to((raw.commanded_rad - raw.encoder_offset_rad)[:, None], shape).copy()
+    t_read, angle = raw.encoder_time_s, raw.encoder_angle_rad - raw.encoder_offset_rad
     if raw.angle_mode == "line":
         return np.broadcast_to(np.interp(raw.line_time_s, t_read, angle)[:, None], shape).copy()
     return np.interp(raw.time_s, t_read, angle)

@@ -20,6 +20,10 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[[int, int], None]
 
+# A bound on lines per scan (0.001 degree steps over a turn), so that a typo cannot
+# ask for an endless scan; the plan checks the memory a scan needs as well.
+MAX_LINES = 360_000
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class StepScan:
@@ -44,9 +48,13 @@ class StepScan:
                 raise ValueError(f"{field} must be a finite number, got {value!r}")
             if value <= 0:
                 raise ValueError(f"{field} must be > 0, got {value}")
-        if self.sweep_deg > 3600:
-            raise ValueError(f"sweep_deg must be at most 3600 (10 turns), got {self.sweep_deg}")
+        if self.sweep_deg > 360:
+            raise ValueError(f"sweep_deg must be at most 360 (one turn; more scans every angle again), "
+                             f"got {self.sweep_deg:g}")
         n = self.sweep_deg / self.step_deg
+        if n > MAX_LINES:
+            raise ValueError(f"step_deg = {self.step_deg:g} makes {n:.3g} lines over {self.sweep_deg:g} deg, more "
+                             f"than {MAX_LINES:,}; use step_deg >= {self.sweep_deg / MAX_LINES:.3g}")
         if abs(n - round(n)) > 1e-9 * max(1.0, n) or round(n) < 1:
             raise ValueError(
                 f"step_deg must divide sweep_deg evenly, got step_deg={self.step_deg} and "

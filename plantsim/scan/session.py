@@ -41,7 +41,7 @@ def line_rng(seed: int, index: int) -> np.random.Generator:
 
 def run_session(*, turntable: Turntable, source, grid: BeamGrid, schedule: StepScan, seed: int,
                 first_beam_s: float, journal_path: str | Path, identity: dict, angle_mode: str,
-                resume: bool = False,
+                encoder_offset_rad: float = 0.0, resume: bool = False,
                 settle_s: float = 0.0, progress: Progress | None = None) -> tuple[RawScan, Journal]:
     """Runs a scan, journaling each line, and returns its raw record built from the journal.
 
@@ -55,6 +55,8 @@ def run_session(*, turntable: Turntable, source, grid: BeamGrid, schedule: StepS
       journal_path: the journal file; created (or, with ``resume``, continued).
       identity: what determines the lines; a journal is resumed only under the same identity.
       angle_mode: the reconstruction's angle rule ("line" or "commanded").
+      encoder_offset_rad: the table's reading at turntable angle 0 (the simulated
+        LiDAR casts at the reported angle minus it).
       resume: continue the journal from its last complete line (a missing
         journal starts a new scan, with a warning).
       settle_s: wait after each move before the line, s (a swaying plant).
@@ -93,7 +95,8 @@ def run_session(*, turntable: Turntable, source, grid: BeamGrid, schedule: StepS
                     time.sleep(settle_s)
                 t0 = index * schedule.step_time_s if turntable.kinematic else time.time() - started
                 t0 += first_beam_s
-                lines = source.cast_lines(np.array([reported]), line_rng(seed, index))
+                table_rad = reported - encoder_offset_rad
+                lines = source.cast_lines(np.array([table_rad]), line_rng(seed, index))
             except HardwareError as exc:
                 raise ScanInterruptedError(
                     f"{exc} [scan stopped at line {index + 1} of {n_lines} ({math.degrees(commanded):g} deg); "
@@ -101,18 +104,19 @@ def run_session(*, turntable: Turntable, source, grid: BeamGrid, schedule: StepS
                     journal_path=str(journal_path), lines_done=index, n_lines=n_lines) from exc
             journal.append(JournalLine(
                 index=index, commanded_angle_rad=commanded, reported_angle_rad=reported,
-                cast_angle_rad=reported, stamp_ns=int(s_to_ns(t0)), range_m=lines.range_m[0],
+                cast_angle_rad=table_rad, stamp_ns=int(s_to_ns(t0)), range_m=lines.range_m[0],
                 status=lines.status[0], hit_class=lines.hit_class[0], geom_id=lines.geom_id[0],
                 intensity=None if lines.intensity is None else lines.intensity[0]))
             if progress is not None:
                 progress(index + 1, n_lines)
     raw = raw_from_lines(journal.lines, grid=grid, T_base_lidar=source.scene.T_base_lidar,
-                         angle_mode=angle_mode, start_unix_ns=int(started * 1e9))
+                         angle_mode=angle_mode, start_unix_ns=int(started * 1e9),
+                         encoder_offset_rad=encoder_offset_rad)
     return raw, journal
 
 
 def raw_from_lines(lines: list[JournalLine], *, grid: BeamGrid, T_base_lidar: np.ndarray,
-                   angle_mode: str, start_unix_ns: int = 0) -> RawScan:
+                   angle_mode: str, start_unix_ns: int = 0, encoder_offset_rad: float = 0.0) -> RawScan:
     """The :class:`RawScan` of journaled lines (in order, one row per line).
 
     The encoder log is the reported angle of each line at its stamp; the ground
@@ -136,4 +140,4 @@ def raw_from_lines(lines: list[JournalLine], *, grid: BeamGrid, T_base_lidar: np
         true_turntable_angle_rad=np.array([line.cast_angle_rad for line in lines])[:, None] * ones
         if lines else np.empty((0, n)),
         hit_class=stack("hit_class", np.uint8), geom_id=stack("geom_id", np.int32),
-        start_unix_ns=start_unix_ns)
+        start_unix_ns=start_unix_ns, encoder_offset_rad=encoder_offset_rad)
