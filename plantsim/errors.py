@@ -63,3 +63,32 @@ class ScanInterruptedError(HardwareError):
         self.journal_path = journal_path
         self.lines_done = lines_done
         self.n_lines = n_lines
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP arrived while the rig was in use (see :mod:`plantsim.hardware.safety`).
+
+    A ``KeyboardInterrupt`` on purpose: code that journals and cleans up after Ctrl-C
+    does the same after ``kill``, and ``except Exception`` does not swallow it.
+
+    Attributes:
+        signum: the signal's number.
+    """
+
+    def __init__(self, signum: int):
+        import signal
+
+        super().__init__(f"terminated by {signal.Signals(signum).name}")
+        self.signum = signum
+
+
+class UnsafeStopError(HardwareError):
+    """A safety stop could not confirm that the hardware is safe (torque, laser still on?).
+
+    Attributes:
+        report: the :class:`plantsim.hardware.safety.SafeStopReport`.
+    """
+
+    def __init__(self, message: str, *, report):
+        super().__init__(message)
+        self.report = report

@@ -1,7 +1,6 @@
 """DynamixelTurntable over the real dynamixel_sdk, against the emulator."""
 
 import math
-import threading
 
 import pytest
 
@@ -26,10 +25,16 @@ def emulator():
         yield emu
 
 
+# Status timeout, s: the SDK's own 34 ms is about 70 times what a servo needs, but
+# the emulator thread shares the machine with the tests and with whatever loads its
+# cores, and the scheduler can keep it waiting longer; 0.5 s is far beyond any delay
+# seen with both cores busy. Tests that expect a missing status lower it to the SDK's.
+STATUS_TIMEOUT_S = 0.5
+SDK_TIMEOUT_S = 0.034
+
+
 def make_turntable(emulator, **options):
-    # Retries keep these tests stable on a loaded machine, where a status packet can
-    # miss the SDK's ~34 ms timeout; the fault tests inject more faults than that.
-    turntable = DynamixelTurntable(retries=2, **options)
+    turntable = DynamixelTurntable(retries=2, status_timeout_s=STATUS_TIMEOUT_S, **options)
     turntable.connect(emulator.port_path, baud_bps=57_600, dxl_id=1)
     return turntable
 
@@ -118,6 +123,7 @@ def test_move_times_out_with_position_in_message(emulator, turntable):
 
 
 def test_no_reply_and_corrupt_crc_become_hardware_errors(emulator, turntable):
+    turntable.status_timeout_s = SDK_TIMEOUT_S  # every status is lost: no need to wait longer
     emulator.inject_no_reply(1, count=None)
     with pytest.raises(ServoCommunicationError, match=r"read Present Position on /dev/pts/\d+ ID 1 .*no status"):
         turntable.position()
@@ -126,6 +132,7 @@ def test_no_reply_and_corrupt_crc_become_hardware_errors(emulator, turntable):
     with pytest.raises(ServoCommunicationError, match="Incorrect status packet"):
         turntable.position()
     emulator.clear_faults()
+    turntable.status_timeout_s = STATUS_TIMEOUT_S
     assert turntable.ping() == 1020  # the port is usable afterwards
 
 
@@ -152,10 +159,9 @@ def test_overload_mid_move_recovers_by_reboot_when_allowed(emulator, caplog):
     with make_turntable(emulator, allow_reboot=True) as turntable:
         turntable.configure(CONFIG)
         turntable.torque_on()
-        timer = threading.Timer(0.03, emulator.inject_hardware_error, args=(1, OVERLOAD))
-        timer.start()
-        final = turntable.move_to(3.0, timeout_s=5, tolerance_rad=4 * units.RAD_PER_TICK)
-        timer.join()
+        # 0.3 s of simulated time into a move of 1.7 s: mid-move however loaded the machine.
+        emulator.call_at(emulator.sim_time + 0.3, lambda: emulator.inject_hardware_error(1, OVERLOAD))
+        final = turntable.move_to(3.0, timeout_s=30, tolerance_rad=4 * units.RAD_PER_TICK)
         assert "shut down during a move; rebooting" in caplog.text
         assert final == pytest.approx(3.0, abs=4 * units.RAD_PER_TICK)
         assert turntable.hardware_error_status() == 0
@@ -166,11 +172,9 @@ def test_overload_mid_move_recovers_by_reboot_when_allowed(emulator, caplog):
 def test_disconnect_mid_move_releases_the_port(emulator, turntable):
     turntable.configure(CONFIG)
     turntable.torque_on()
-    timer = threading.Timer(0.03, emulator.disconnect)
-    timer.start()
+    emulator.call_at(emulator.sim_time + 0.3, emulator.disconnect)  # a move of 3.5 s simulated
     with pytest.raises(ServoCommunicationError, match="the port failed.*connect\\(\\) again"):
-        turntable.move_to(6.0, timeout_s=5)
-    timer.join()
+        turntable.move_to(6.0, timeout_s=30)
     assert not turntable.connected
     with pytest.raises(ServoCommunicationError, match="not connected; call connect"):
         turntable.position()

@@ -17,11 +17,17 @@ def emulator():
         yield emu
 
 
+# The driver waits STATUS_TIMEOUT_S for a status (a margin for an emulator thread the
+# scheduler keeps waiting); the injected delay is beyond it, so the status is late.
+STATUS_TIMEOUT_S = 0.5
+LATE_S = 0.6
+
+
 def test_late_reply_does_not_become_the_next_answer(emulator):
-    with DynamixelTurntable(retries=0) as driver:
+    with DynamixelTurntable(retries=0, status_timeout_s=STATUS_TIMEOUT_S) as driver:
         driver.connect(emulator.port_path)
         driver.write_register("Homing Offset", 1000)
-        emulator.inject_late_reply(1, delay_s=0.06)
+        emulator.inject_late_reply(1, delay_s=LATE_S)
         with pytest.raises(ServoCommunicationError, match="no status packet"):
             driver.read_register("Torque Enable")
         assert driver.read_register("Present Position") == 1000
@@ -29,12 +35,26 @@ def test_late_reply_does_not_become_the_next_answer(emulator):
 
 
 def test_late_reply_is_retried(emulator, caplog):
-    with DynamixelTurntable(retries=2) as driver:
+    with DynamixelTurntable(retries=2, status_timeout_s=STATUS_TIMEOUT_S) as driver:
         driver.connect(emulator.port_path)
-        emulator.inject_late_reply(1, delay_s=0.06)
+        driver.write_register("Homing Offset", 1000)
+        emulator.inject_late_reply(1, delay_s=LATE_S)
         assert driver.read_register("Model Number") == 1020
         assert driver.read_register("Firmware Version") == 46
         assert "attempt 1 of 3" in caplog.text
+        assert "discarded 1 late status packet(s)" in caplog.text
+
+
+def test_late_reply_of_the_same_length_is_discarded_not_taken(emulator, caplog):
+    """Two reads of the same register: only the resync tells the late status from the answer."""
+    with DynamixelTurntable(retries=1, status_timeout_s=STATUS_TIMEOUT_S) as driver:
+        driver.connect(emulator.port_path)
+        driver.write_register("Homing Offset", 1000)
+        emulator.inject_late_reply(1, delay_s=LATE_S)
+        assert driver.read_register("Homing Offset") == 1000  # answered on the retry
+        driver.write_register("Homing Offset", 2000)
+        assert driver.read_register("Homing Offset") == 2000  # not the late 1000
+        assert "discarded 1 late status packet(s)" in caplog.text
 
 
 def test_inject_late_reply_validates():

@@ -14,7 +14,9 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import signal
 import sys
 import threading
 
@@ -84,7 +86,7 @@ def run_rig_scan(args: argparse.Namespace) -> int:
     import time
 
     from plantsim.cli.app import _progress_bar, resolve_config, scan_overrides, summary_line
-    from plantsim.errors import HardwareError, ScanInterruptedError
+    from plantsim.errors import HardwareError, ScanInterruptedError, UnsafeStopError
     from plantsim.hardware.dynamixel.turntable import ServoTurntable
     from plantsim.scan.pipeline import check_outputs, check_plant_seen, journal_path_for, run_scan, write_result
     from plantsim.scan.plan import plan_scan
@@ -103,32 +105,79 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         return 2
     resume_hint = (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and run the "
                    "same command again with --resume")
-    try:
-        turntable = ServoTurntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id,
-                                           model=args.model, retries=args.retries)
-    except HardwareError as exc:
-        print(f"plantsim: error: {exc}", file=sys.stderr)
-        return 1
     progress, close_bar = _progress_bar("rig scan")
     try:
-        with turntable:
-            result = run_scan(config, turntable=turntable, resume=args.resume, settle_s=args.settle_s,
-                              progress=progress)
+        with rig_safety() as safety:
+            try:
+                turntable = ServoTurntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id,
+                                                   model=args.model, retries=args.retries, safety=safety,
+                                                   driver_options=_driver_options(args))
+            except HardwareError as exc:
+                print(f"plantsim: error: {exc}", file=sys.stderr)
+                return 1
+            with turntable:
+                result = run_scan(config, turntable=turntable, resume=args.resume, settle_s=args.settle_s,
+                                  progress=progress)
+    except UnsafeStopError:
+        close_bar()  # the DANGER line is printed
+        return 1
     except ScanInterruptedError as exc:
         close_bar()
         print(f"plantsim: error: {exc}", file=sys.stderr)
         print(resume_hint, file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (plantsim.errors.Terminated)
         close_bar()
-        print("plantsim: interrupted. " + resume_hint.removeprefix("plantsim: "), file=sys.stderr)
-        return 130
+        print(f"plantsim: {_interrupt_name(exc)}. " + resume_hint.removeprefix("plantsim: "), file=sys.stderr)
+        return _interrupt_exit_code(exc)
     finally:
         close_bar()
     check_plant_seen(result)
     path = write_result(result, keep_journal=args.keep_journal)
     print(summary_line(result, path, time.perf_counter() - t0))
     return 0
+
+
+@contextlib.contextmanager
+def rig_safety(stream=None):
+    """A :class:`~plantsim.hardware.safety.SafeStop` for a rig command.
+
+    Wrap everything that talks to the hardware: register each device's stop action
+    (``ServoTurntable.connect(..., safety=safety)`` does it for the servo; the URG
+    LiDAR's ``laser off`` goes the same way). SIGTERM and SIGHUP unwind the block as
+    :class:`~plantsim.errors.Terminated` (a ``KeyboardInterrupt``); on leaving it every
+    action runs, retried and read back, and when one cannot be confirmed the one-line
+    DANGER message is printed to ``stream`` (stderr), whatever the verbosity.
+    :class:`~plantsim.errors.UnsafeStopError` then propagates from a block that
+    ended normally; catch it and exit non-zero.
+    """
+    from plantsim.hardware.safety import SafeStop
+
+    safety = SafeStop()
+    try:
+        with safety:
+            yield safety
+    finally:
+        report = safety.report
+        if report is not None and not report.safe:
+            print(f"plantsim: {report.warning()}", file=stream or sys.stderr, flush=True)
+
+
+def _driver_options(args: argparse.Namespace) -> dict:
+    timeout_ms = args.status_timeout_ms
+    if not (0 < timeout_ms <= 10_000):
+        raise ValueError(f"--status-timeout-ms must be in (0, 10000], got {timeout_ms}")
+    return {"status_timeout_s": timeout_ms / 1e3}
+
+
+def _interrupt_name(exc: BaseException) -> str:
+    signum = getattr(exc, "signum", None)
+    return f"terminated ({signal.Signals(signum).name})" if signum else "interrupted"
+
+
+def _interrupt_exit_code(exc: BaseException) -> int:
+    """128 + the signal's number, as a shell reports a process ended by it (Ctrl-C: 130)."""
+    return 128 + getattr(exc, "signum", signal.SIGINT)
 
 
 def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
@@ -138,6 +187,9 @@ def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--id", dest="dxl_id", type=int, default=1, help="servo ID (default: 1)")
     parser.add_argument("--model", choices=sorted(ct.CONTROL_TABLES), default="xm430-w350",
                         help="expected model (default: xm430-w350)")
+    parser.add_argument("--status-timeout-ms", type=float, default=34.0, metavar="MS",
+                        help="least time to wait for the servo's reply, ms (default: 34, the SDK's; raise it "
+                        "for a slow USB adapter or an emulator on a busy machine)")
 
 
 def run_emulator(args: argparse.Namespace) -> int:
@@ -146,6 +198,10 @@ def run_emulator(args: argparse.Namespace) -> int:
     ids = args.ids or [1]
     emulator = DynamixelEmulator(ids=ids, model=args.model, baud_bps=args.baud_bps,
                                  speed_factor=args.speed_factor, load_inertia=args.load_inertia)
+    # Ctrl-C and SIGTERM stop it, even when a parent started it with SIGINT ignored
+    # (a background job of a non-interactive shell).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
     with emulator:
         print(emulator.port_path, flush=True)
         print(f"{args.model} ID {', '.join(map(str, ids))} at {args.baud_bps} bps; Ctrl-C to stop",
@@ -162,13 +218,17 @@ def run_rig_ping(args: argparse.Namespace) -> int:
     from plantsim.errors import HardwareError
 
     try:
-        with DynamixelTurntable(model=args.model) as turntable:
+        with rig_safety(), DynamixelTurntable(model=args.model, **_driver_options(args)) as turntable:
+            # Ping leaves the torque as it found it: no stop action to register.
             turntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id)
             position = turntable.position()
             status = turntable.hardware_error_status()
     except HardwareError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt as exc:
+        print(f"plantsim: {_interrupt_name(exc)}", file=sys.stderr)
+        return _interrupt_exit_code(exc)
     table = turntable.table
     print(f"model: {table.model_name} ({table.model_number})")
     print(f"firmware: {turntable.firmware_version}")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+import select
 import termios
 import threading
 import time
@@ -34,6 +35,17 @@ _CHECKLIST = (
 # How long to wait for a late status after a lost one before discarding it: far longer
 # than a servo takes (Return Delay Time 0.5 ms) plus two 16 ms USB latency periods.
 _LATE_STATUS_S = 0.05
+# The SDK's status timeout (port_handler.setPacketTimeout): 2 x the 16 ms USB latency
+# timer + 2 ms + the packet's transmission time. A real servo answers within the Return
+# Delay Time (0.5 ms by default), so this is the floor of ``status_timeout_s``.
+_SDK_LATENCY_MS = 2 * 16.0 + 2.0
+# Longest wait in one poll of the port while a status is due: the SDK spins on the
+# port without sleeping; waiting in select instead frees the CPU (and the GIL, which
+# an emulator in the same process needs to answer).
+_POLL_WAIT_S = 0.002
+# Attempts of a safety stop's torque-off write and read-back before it is reported
+# unconfirmed.
+_STOP_ATTEMPTS = 3
 # Block read for polling a move: Moving (122) .. Present Position (132..135).
 _POLL_ADDRESS, _POLL_LENGTH = 122, 14
 
@@ -50,6 +62,29 @@ def _sdk():
             "the Dynamixel driver needs the official SDK: pip install 'plantsim[rig]' (dynamixel-sdk)"
         ) from exc
     return dynamixel_sdk
+
+
+def port_handler(port: str, *, status_timeout_s: float = _SDK_LATENCY_MS / 1e3):
+    """The SDK's ``PortHandler`` with a status timeout floor and a waiting (not spinning) read.
+
+    Its ``min_timeout_ms`` attribute (settable) is the least time the SDK waits for a
+    status, ms; the SDK's own timeout applies when longer.
+    """
+    sdk = _sdk()
+
+    class _PortHandler(sdk.PortHandler):
+        min_timeout_ms = 1e3 * status_timeout_s
+
+        def setPacketTimeout(self, packet_length):
+            super().setPacketTimeout(packet_length)
+            self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
+
+        def readPort(self, length):
+            if length > 0 and self.ser is not None and not self.ser.in_waiting:
+                select.select([self.ser.fileno()], [], [], _POLL_WAIT_S)
+            return super().readPort(length)
+
+    return _PortHandler(port)
 
 
 def _port_errors() -> tuple[type[BaseException], ...]:
@@ -69,15 +104,29 @@ class DynamixelTurntable:
             a reboot re-enables torque, and a jammed plant or hand can be in the way.
         retries: times to repeat a read or register write whose status packet was
             missing or corrupt (each retry is logged as a warning). Reads and register
-            writes are idempotent; 0 surfaces every lost packet.
+            writes are idempotent; 0 surfaces every lost packet. Before a retry the bus
+            is resynchronised (see :meth:`resync`), so a late status is never taken
+            for the answer to a later request.
+        status_timeout_s: the least time to wait for a status packet, s. The SDK's own
+            timeout (34 ms plus the packet's transmission time) is used when it is
+            longer. Raise it for a servo behind a slow link, or for an emulator on a
+            loaded machine, where a status can be delayed by the scheduler.
     """
 
-    def __init__(self, *, model: str = "xm430-w350", allow_reboot: bool = False, retries: int = 0):
-        if not isinstance(retries, int) or retries < 0:
+    def __init__(self, *, model: str = "xm430-w350", allow_reboot: bool = False, retries: int = 0,
+                 status_timeout_s: float = _SDK_LATENCY_MS / 1e3):
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
             raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
+        if isinstance(status_timeout_s, bool) or not isinstance(status_timeout_s, (int, float)) or not (
+                math.isfinite(status_timeout_s) and 0 < status_timeout_s <= 10):
+            raise ValueError(f"status_timeout_s must be in (0, 10] s, got {status_timeout_s!r}")
         self.table = ct.control_table(model)
         self.allow_reboot = allow_reboot
         self.retries = retries
+        self._status_timeout_s = float(status_timeout_s)
+        # Set when an SDK call did not return (KeyboardInterrupt, SIGTERM, ...): the
+        # SDK's busy flag may be left set and a status may still be on its way.
+        self._interrupted = False
         self._lock = threading.Lock()
         self._port = None
         self._packet = None
@@ -93,6 +142,20 @@ class DynamixelTurntable:
     @property
     def connected(self) -> bool:
         return self._port is not None
+
+    @property
+    def status_timeout_s(self) -> float:
+        """The least time to wait for a status packet, s (settable)."""
+        return self._status_timeout_s
+
+    @status_timeout_s.setter
+    def status_timeout_s(self, value: float) -> None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value) and 0 < value <= 10):
+            raise ValueError(f"status_timeout_s must be in (0, 10] s, got {value!r}")
+        self._status_timeout_s = float(value)
+        if self._port is not None:
+            self._port.min_timeout_ms = 1e3 * value
 
     def connect(self, port: str, *, baud_bps: int = 57_600, dxl_id: int = 1) -> None:
         """Opens ``port``, pings ``dxl_id`` and verifies its model number.
@@ -110,7 +173,7 @@ class DynamixelTurntable:
             raise ValueError(f"dxl_id must be in [0, 252], got {dxl_id}")
         if self._port is not None:
             self.close()
-        handler = sdk.PortHandler(port)
+        handler = port_handler(port, status_timeout_s=self._status_timeout_s)
         try:
             handler.openPort()
             if not handler.setBaudRate(baud_bps):
@@ -121,8 +184,12 @@ class DynamixelTurntable:
                 "that no other program holds it, and that you may access it (group dialout)."
             ) from exc
         self._port, self._packet = handler, sdk.PacketHandler(2.0)
+        self._interrupted = False
         self.port_name, self.baud_bps, self.dxl_id = port, baud_bps, dxl_id
         try:
+            # A status still owed to an earlier program (or an interrupted connect) on
+            # this bus must not be taken for the answer: resynchronise first.
+            self.resync(raise_on_failure=False)
             model_number = self.ping()
             if model_number != self.table.model_number:
                 other = ct.CONTROL_TABLES_BY_NUMBER.get(model_number)
@@ -133,7 +200,7 @@ class DynamixelTurntable:
                 )
             self.firmware_version = self.read_register("Firmware Version")
             self._operating_mode = self.read_register("Operating Mode")
-        except HardwareError:
+        except BaseException:  # a failure, or Ctrl-C: do not leave the port open and busy
             self.close()
             raise
         _log.info("connected to %s ID %d on %s at %d bps (firmware %s)", self.table.model_name, dxl_id,
@@ -169,33 +236,102 @@ class DynamixelTurntable:
             try:
                 return self._call_once(what, method, *args, check_alert=check_alert)
             except _LostStatus as lost:
-                self._drain_late_status()
                 if attempt == attempts:
+                    self._mark_unsynced()
                     raise ServoCommunicationError(str(lost)) from None
                 _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
+                self.resync(raise_on_failure=False)
+                if self._port is None:  # the port vanished while the status was awaited
+                    raise ServoCommunicationError(
+                        f"{what} on {self.port_name} ID {self.dxl_id}: the port failed after a lost status; "
+                        f"the adapter was unplugged or the port closed. {_CHECKLIST} Then call connect() again."
+                    ) from None
         raise AssertionError("unreachable")
 
-    def _drain_late_status(self) -> None:
-        """Waits out and discards a status that may still arrive for a lost one.
+    def _mark_unsynced(self) -> None:
+        self._interrupted = True
+
+    def resync(self, *, raise_on_failure: bool = True) -> bool:
+        """Brings the bus back in step after a lost, late or interrupted exchange.
 
         Protocol 2.0 status packets carry no sequence number, and the SDK takes the
-        first status with the right ID as the answer: a late reply to the lost request
-        would be read as the answer to the next one (wrong values, silently).
+        first status with the right ID as the answer: a late reply to a lost request
+        would be read as the answer to the next one (wrong values, silently). The
+        servo answers in order, so a PING sent now is answered after any status still
+        owed; every status before the PING's (3 parameter bytes: model and firmware)
+        is discarded. Also clears the SDK's busy flag that an interrupted call leaves.
+
+        Returns:
+            True when the PING's status arrived (the bus is in step).
+
+        Raises:
+            ServoCommunicationError: when ``raise_on_failure`` and no PING status
+                arrived within ``2 * status_timeout_s`` + the late-status window.
         """
-        time.sleep(_LATE_STATUS_S)
+        sdk = _sdk()
         with self._lock:
-            if self._port is not None:
-                try:
-                    self._port.clearPort()
-                except _port_errors() as exc:
-                    _log.debug("clearing %s: %s", self.port_name, exc)
+            if self._port is None:
+                if raise_on_failure:
+                    raise ServoCommunicationError("resync: not connected; call connect() first")
+                return False
+            port = self._port
+            port.is_using = False
+            deadline = time.monotonic() + 2 * self._status_timeout_s + _LATE_STATUS_S
+            discarded = 0
+            try:
+                for _ in range(3):  # the PING's own status may be lost too
+                    packet = [0] * 10
+                    packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 3, 0, sdk.INST_PING
+                    if self._packet.txPacket(port, packet) != sdk.COMM_SUCCESS:
+                        port.is_using = False
+                        continue
+                    while True:
+                        port.setPacketTimeout(14)
+                        rx, result = self._packet.rxPacket(port, False)
+                        if result != sdk.COMM_SUCCESS:
+                            break
+                        if rx[4] == self.dxl_id and rx[5] | (rx[6] << 8) == 7:
+                            port.is_using = False
+                            self._interrupted = False
+                            if discarded:
+                                _log.warning("discarded %d late status packet(s) from ID %d on %s",
+                                             discarded, self.dxl_id, self.port_name)
+                            return True
+                        discarded += 1
+                    port.is_using = False
+                    if time.monotonic() > deadline:
+                        break
+            except _port_errors() as exc:
+                name = self.port_name
+                self._release_port()
+                if raise_on_failure:
+                    raise ServoCommunicationError(f"resync on {name}: the port failed ({exc!r})") from exc
+                return False
+            except BaseException:
+                port.is_using = False
+                raise
+        if raise_on_failure:
+            raise ServoCommunicationError(
+                f"servo ID {self.dxl_id} on {self.port_name} does not answer a PING after a lost status. "
+                f"{_CHECKLIST}")
+        return False
 
     def _call_once(self, what: str, method: str, *args, check_alert: bool):
+        if self._interrupted and self._port is not None:
+            # A previous call did not return (Ctrl-C, a signal): its status may still be
+            # on the way and the SDK's busy flag is set. Without this, every later
+            # call, the safety stop's torque-off included, is refused "Port is in use!".
+            self.resync(raise_on_failure=False)
         with self._lock:
             if self._port is None:
                 raise ServoCommunicationError(f"{what}: not connected; call connect() first")
             try:
-                out = getattr(self._packet, method)(self._port, self.dxl_id, *args)
+                self._interrupted = True
+                if method == "ping":
+                    out = self._ping_checked()
+                else:
+                    out = getattr(self._packet, method)(self._port, self.dxl_id, *args)
+                self._interrupted = False
             except _port_errors() as exc:
                 port = self.port_name
                 self._release_port()
@@ -207,6 +343,10 @@ class DynamixelTurntable:
             value, result, error = out
         else:
             (result, error), value = out, None
+        if result == 0 and method == "ping" and value is None:
+            raise _LostStatus(
+                f"{what} on {self.port_name} ID {self.dxl_id}: a status that is not a PING's (a late reply to "
+                "an earlier request)")
         if result == 0 and method == "readTxRx" and len(value) != args[-1]:
             # The SDK does not check the length: a status of another length is the
             # late reply to an earlier request, not this one's.
@@ -247,6 +387,21 @@ class DynamixelTurntable:
             f"check the load (jammed turntable, heavy pot), the supply and the temperature; {action}.",
             hardware_error_status=status,
         )
+
+    def _ping_checked(self):
+        """The SDK's ping, but a status without exactly 3 parameters is not taken (value None).
+
+        The SDK's own ``ping`` reads the model number from whatever status comes first.
+        """
+        sdk = _sdk()
+        packet = [0] * 10
+        packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 3, 0, sdk.INST_PING
+        rx, result, error = self._packet.txRxPacket(self._port, packet)
+        if result != sdk.COMM_SUCCESS:
+            return 0, result, error
+        if rx[5] | (rx[6] << 8) != 7:
+            return None, result, error
+        return rx[9] | (rx[10] << 8), result, error
 
     def ping(self) -> int:
         """Pings the servo; returns its model number."""
@@ -309,6 +464,31 @@ class DynamixelTurntable:
 
     def torque_off(self) -> None:
         self.write_register("Torque Enable", 0)
+
+    def torque_enabled(self) -> bool:
+        """Reads Torque Enable back from the servo (True: the motor is powered)."""
+        return self.read_register("Torque Enable") == 1
+
+    def emergency_stop(self) -> None:
+        """Stops the servo by switching its torque off, whatever state the link is in.
+
+        For a safety stop after Ctrl-C, a signal, an exception or a lost link: frees
+        the port an interrupted call left busy and resynchronises the bus, reconnects
+        if the port was lost (same port, baud and ID), then writes Torque Enable = 0
+        (the motor stops driving; the turntable coasts to rest). Confirm it with
+        :meth:`torque_enabled`.
+
+        Raises:
+            HardwareError: if the servo cannot be reached or refuses the write.
+        """
+        if self._port is None:
+            if self.port_name is None:
+                raise ServoCommunicationError("emergency stop: never connected; nothing to stop")
+            _log.warning("emergency stop: reconnecting to %s to switch torque off", self.port_name)
+            self.connect(self.port_name, baud_bps=self.baud_bps, dxl_id=self.dxl_id)
+        self.resync(raise_on_failure=False)
+        register = self.table["Torque Enable"]
+        self._call("emergency stop: write Torque Enable=0", "write1ByteTxRx", register.address, 0)
 
     # --- motion -------------------------------------------------------------------
 

@@ -21,10 +21,14 @@ time-based profile), Bus Watchdog and the Velocity Limit cap on the profile are 
 emulated; REBOOT is instantaneous.
 
 Timing: the SDK waits about 34 ms for a status. The emulator answers in about 1 ms,
-but on a machine loaded by other processes a status can occasionally miss that
-window, as on a noisy bus; :class:`~plantsim.dynamixel.driver.DynamixelTurntable`'s
-``retries`` covers it. Run the emulator in its own process (``plantsim emulator``)
-for the most faithful timing.
+but on a machine whose cores are busy its thread can be kept waiting longer than that
+by the scheduler. Tests therefore (a) give the driver a longer status timeout
+(``DynamixelTurntable(status_timeout_s=0.5)``, or ``driver.port_handler`` for the raw
+SDK), which costs nothing while replies come, and (b) schedule faults on the
+emulator's simulated clock (:meth:`DynamixelEmulator.call_at`), not on wall-clock
+timers: simulated time advances only with the physics, so a fault lands at the same
+point of a move however late the emulator runs. Run the emulator in its own process
+(``plantsim emulator``) for the most faithful timing.
 
 Usage::
 
@@ -331,6 +335,7 @@ class DynamixelEmulator:
         self.port_path: str | None = None
         self._parser = protocol.PacketParser()
         self._sim_time = 0.0
+        self._scheduled: list[tuple[float, int, object]] = []  # (sim time, order, callable)
 
     # --- lifecycle ------------------------------------------------------------------
 
@@ -356,6 +361,14 @@ class DynamixelEmulator:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def _close_master(self) -> None:
+        if self._master is not None:
+            try:
+                os.close(self._master)
+            except OSError:
+                pass
+            self._master = None
 
     def _close_fds(self) -> None:
         for fd in (self._master, self._slave):
@@ -383,6 +396,27 @@ class DynamixelEmulator:
     @property
     def sim_time(self) -> float:
         return self._sim_time
+
+    def call_at(self, sim_time_s: float, action) -> None:
+        """Runs ``action()`` in the emulator's thread once simulated time reaches ``sim_time_s``.
+
+        The clock a test controls: simulated time advances only with the physics, so
+        a fault scheduled 0.3 s of simulated time after a move starts happens at the
+        same point of the move however late the machine lets the emulator run (a
+        wall-clock timer would not). ``action`` runs under :attr:`lock`.
+        """
+        if not (isinstance(sim_time_s, (int, float)) and math.isfinite(sim_time_s)):
+            raise ValueError(f"sim_time_s must be a finite number, got {sim_time_s!r}")
+        if not callable(action):
+            raise ValueError(f"action must be callable, got {action!r}")
+        with self._lock:
+            self._scheduled.append((float(sim_time_s), len(self._scheduled), action))
+            self._scheduled.sort(key=lambda event: event[:2])
+
+    def _run_scheduled(self) -> None:
+        while self._scheduled and self._scheduled[0][0] <= self._sim_time:
+            _, _, action = self._scheduled.pop(0)
+            action()
 
     def inject_no_reply(self, dxl_id: int, *, count: int | None = 1) -> None:
         """The servo ignores the next ``count`` packets (None: until cleared), as if unplugged."""
@@ -424,9 +458,12 @@ class DynamixelEmulator:
                 s.late_count = 0
 
     def disconnect(self) -> None:
-        """Closes the pty, as if the USB adapter were pulled; the SDK's next call fails."""
+        """Closes the pty, as if the USB adapter were pulled; the SDK's next call fails.
+
+        The servos keep their state (a servo whose adapter is pulled keeps its torque).
+        """
         self._disconnect.set()
-        if self._thread is not None:
+        if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
 
     # --- the bus --------------------------------------------------------------------
@@ -453,6 +490,9 @@ class DynamixelEmulator:
                         self._sim_time += steps * timestep
                         for s in self._servos:
                             s.advance(self._sim_time)
+                        self._run_scheduled()
+                if self._disconnect.is_set():
+                    break
                 # Serve the port between short physics chunks; sleep in select when idle.
                 readable, _, _ = select.select([self._master], [], [], 0.0 if steps > 0 else 0.0005)
                 if readable:
@@ -470,7 +510,10 @@ class DynamixelEmulator:
         finally:
             if self._disconnect.is_set() or not self._stop.is_set():
                 _log.info("Dynamixel emulator on %s disconnected", self.port_path)
-                self._close_fds()
+                # Only the master: the emulator's own slave fd stays open until stop(),
+                # so the kernel cannot hand this pty's number to another program while
+                # a client may still try to reopen the path (it finds no such file).
+                self._close_master()
 
     def _serve(self, packet: protocol.Packet) -> None:
         if packet.is_status:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -9,9 +10,41 @@ import time
 import numpy as np
 
 from plantsim.errors import HardwareError
+from plantsim.hardware.dynamixel import control_table as ct
 from plantsim.turntable import units
 
 log = logging.getLogger(__name__)
+
+_TORQUE_ADVICE = ("switch off the servo's 12 V supply now: the turntable may still be powered and "
+                  "can hold or move the plant")
+
+
+@dataclasses.dataclass(frozen=True)
+class ServoStatus:
+    """What the servo reports, in SI units (one :meth:`ServoTurntable.status` call).
+
+    Attributes:
+        position_rad: present position, rad (raw 0 = 0 rad).
+        velocity_rad_s: present velocity, rad/s.
+        temperature_c: internal temperature, degC.
+        input_voltage_v: supply voltage at the servo, V.
+        current_a: motor current, A (None on the XL430, which has no current sensor).
+        load_percent: load, % of the maximum (XL430: Present Load; XM430: present
+            current over the Current Limit), signed with the direction of torque.
+        hardware_errors: names of the Hardware Error Status bits set (empty when fine).
+        torque_enabled: True when the motor is powered.
+        moving: the servo's Moving flag.
+    """
+
+    position_rad: float
+    velocity_rad_s: float
+    temperature_c: float
+    input_voltage_v: float
+    current_a: float | None
+    load_percent: float
+    hardware_errors: tuple[str, ...]
+    torque_enabled: bool
+    moving: bool
 
 
 class ServoTurntable:
@@ -42,11 +75,13 @@ class ServoTurntable:
         self.move_timeout_s = move_timeout_s
         self.tolerance_rad = tolerance_rad
         self.stable_interval_s = stable_interval_s
+        self._closed_safe = False  # close() confirmed the torque off
 
     @classmethod
     def connect(cls, port: str, *, baud_bps: int = 57_600, dxl_id: int = 1, model: str = "xm430-w350",
                 retries: int = 2, profile_velocity_rad_s: float = 0.5,
-                profile_acceleration_rad_s2: float = 2.0, **options) -> "ServoTurntable":
+                profile_acceleration_rad_s2: float = 2.0, safety=None, driver_options: dict | None = None,
+                **options) -> "ServoTurntable":
         """Connects to the servo, configures a gentle profile and switches torque on.
 
         The servo's factory gains are kept; only the profile (velocity and
@@ -58,6 +93,11 @@ class ServoTurntable:
           retries: repeats of a read or register write whose status packet was lost.
           profile_velocity_rad_s: the move's velocity cap, rad/s.
           profile_acceleration_rad_s2: the move's acceleration, rad/s^2.
+          safety: a :class:`~plantsim.hardware.safety.SafeStop` to register the servo's
+            stop action with, as soon as the port is open (before torque comes on).
+          driver_options: more keyword arguments of
+            :class:`~plantsim.hardware.dynamixel.driver.DynamixelTurntable`
+            (``status_timeout_s``, ``allow_reboot``).
           **options: ``move_timeout_s``, ``tolerance_rad``.
 
         Raises:
@@ -66,17 +106,22 @@ class ServoTurntable:
         from plantsim.turntable import servo
         from plantsim.hardware.dynamixel.driver import DynamixelTurntable
 
+        driver_options = dict(driver_options or {})
         base = servo.ServoConfig.xl430_w250 if model == "xl430-w250" else servo.ServoConfig.xm430_w350
         config = base(profile_velocity=profile_velocity_rad_s,
                       profile_acceleration=profile_acceleration_rad_s2)
-        driver = DynamixelTurntable(model=model, retries=retries)
+        driver = DynamixelTurntable(model=model, retries=retries, **driver_options)
+        table = cls(driver, **options)  # validates the options before the port is opened
         driver.connect(port, baud_bps=baud_bps, dxl_id=dxl_id)
+        if safety is not None:
+            # Registered before torque can come on: a Ctrl-C from here on is covered.
+            safety.register(table.stop_action())
         try:
             driver.configure(config, operating_mode="position")
             driver.torque_on()
-            return cls(driver, **options)
+            return table
         except BaseException:
-            driver.close()
+            table.close()  # torque off (read back), port released
             raise
 
     def check_angles(self, angles_rad: np.ndarray) -> None:
@@ -120,14 +165,95 @@ class ServoTurntable:
     def identity(self) -> dict:
         return {"kind": "dynamixel", "model": self.driver.table.model_name, "id": self.driver.dxl_id}
 
-    def close(self) -> None:
-        """Switches torque off (best effort: the servo may be gone) and releases the port."""
+    # --- what a user reads on the rig -------------------------------------------------
+
+    def velocity_rad_s(self) -> float:
+        """Present velocity, rad/s."""
+        return self.driver.velocity()
+
+    def temperature_c(self) -> float:
+        """Internal temperature, degC (the servo shuts down at its Temperature Limit, 80 degC)."""
+        return self.driver.temperature()
+
+    def input_voltage_v(self) -> float:
+        """Supply voltage at the servo, V."""
+        return 0.1 * self.driver.read_register("Present Input Voltage")
+
+    def current_a(self) -> float | None:
+        """Motor current, A; None on a model without a current sensor (XL430)."""
+        if "Present Current" not in self.driver.table:
+            return None
+        return self.driver.current()
+
+    def load_percent(self) -> float:
+        """Load, % of the maximum, signed (XL430: Present Load; XM430: current / Current Limit)."""
+        table = self.driver.table
+        if "Present Load" in table:
+            return 0.1 * self.driver.read_register("Present Load")
+        limit = self.driver.read_register("Current Limit")
+        return 100.0 * self.driver.read_register("Present Current") / limit if limit else math.nan
+
+    def hardware_errors(self) -> tuple[str, ...]:
+        """Names of the Hardware Error Status bits set (overload, overheating, ...); empty when fine."""
+        return tuple(ct.hardware_error_names(self.driver.hardware_error_status()))
+
+    def torque_enabled(self) -> bool:
+        """True when the servo's motor is powered (Torque Enable read back)."""
+        return self.driver.torque_enabled()
+
+    def status(self) -> ServoStatus:
+        """Everything above in one record."""
+        return ServoStatus(
+            position_rad=self.driver.position(), velocity_rad_s=self.velocity_rad_s(),
+            temperature_c=self.temperature_c(), input_voltage_v=self.input_voltage_v(),
+            current_a=self.current_a(), load_percent=self.load_percent(),
+            hardware_errors=self.hardware_errors(), torque_enabled=self.torque_enabled(),
+            moving=self.driver.read_register("Moving") == 1)
+
+    # --- safety -----------------------------------------------------------------------
+
+    def stop_action(self):
+        """The servo's :class:`~plantsim.hardware.safety.StopAction` for a :class:`~plantsim.hardware.safety.SafeStop`.
+
+        Stop: torque off, after freeing a port an interrupted call left busy (and
+        reconnecting after a lost link). Verify: Torque Enable read back as 0.
+        """
+        from plantsim.hardware.safety import StopAction
+
+        def stop() -> None:
+            if not self._closed_safe:
+                self.driver.emergency_stop()
+
+        def verify() -> bool:
+            return self._closed_safe or not self.driver.torque_enabled()
+
+        return StopAction("servo torque", stop, verify, advice=_TORQUE_ADVICE)
+
+    def close(self) -> bool:
+        """Switches torque off, reads it back (3 tries) and releases the port.
+
+        Returns:
+            True when Torque Enable read back 0. False (logged as an error) when it
+            could not be confirmed: use a :class:`~plantsim.hardware.safety.SafeStop`
+            to tell the user.
+        """
+        confirmed = False
+        self._closed_safe = False
         if self.driver.connected:
-            try:
-                self.driver.torque_off()
-            except HardwareError as exc:
-                log.info("torque off on close failed: %s", exc)
+            for attempt in range(1, 4):
+                try:
+                    self.driver.emergency_stop()
+                    if not self.driver.torque_enabled():
+                        confirmed = True
+                        break
+                except HardwareError as exc:
+                    log.warning("torque off on close, attempt %d of 3: %s", attempt, exc)
+            if not confirmed:
+                log.error("servo ID %s on %s: torque NOT confirmed off; %s", self.driver.dxl_id,
+                          self.driver.port_name, _TORQUE_ADVICE)
         self.driver.close()
+        self._closed_safe = confirmed
+        return confirmed
 
     def __enter__(self) -> "ServoTurntable":
         return self
