@@ -338,3 +338,23 @@ def test_toml_sections_for_the_sensor_model_and_a_user_lidar():
         config_from_dict({"sensor_model": {"rings": 2}})
     with pytest.raises(ConfigError, match=r"\[sensor_model\] footprint_rings must be an integer"):
         config_from_dict({"sensor_model": {"footprint_rings": 11}})
+
+
+def test_mixed_pixels_in_a_scan_form_a_continuum():
+    """A thin horizontal rod 0.2 m before a wall, across the scan plane: footprints straddling its
+    edges give ranges all the way between the two surfaces (jittered footprints), not a few levels;
+    one ray per beam gives none."""
+    post = dict(name="post", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.004, 0.3, 0],
+                pos=[X_LIDAR - 0.3, 0.0, Z_LIDAR], quat=[math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0])
+    scene = scene_with(wall(0.5), post)
+    lidar = URG_04LX_UG01.replace(n_beams=200, angle_min_deg=-1.0, angle_increment_deg=0.01, steps_per_rev=None,
+                                  first_step=0)
+    model = SensorModel(range_noise=False, quantise=False, dropouts=False)
+    raw = scan(scene, model, lidar=lidar, lines=60)
+    r = raw.range_m[raw.status == 0]
+    between = r[(r > 0.305) & (r < 0.495)]
+    assert len(np.unique(np.round(between, 4))) > 200  # 0.1 mm bins: a continuum (a fixed pattern: ~40)
+    single = scan(scene, SensorModel(range_noise=False, quantise=False, dropouts=False, footprint_rings=0),
+                  lidar=lidar, lines=60)
+    r1 = single.range_m[single.status == 0]
+    assert not ((r1 > 0.305) & (r1 < 0.495)).any()

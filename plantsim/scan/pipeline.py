@@ -258,7 +258,7 @@ def simulate_lines(source: SimulatedLidar, record: motions.MotionRecord, grid: B
     """
     beam_time_s = ns_to_s(record.line_stamp_ns)[:, None] + grid.beam_offsets_s()[None, :]
     true_rad = record.true_angles(beam_time_s)
-    lines = source.cast_lines(true_rad, rng, progress=progress)
+    lines = source.cast_lines(true_rad, rng, beam_time_s=beam_time_s, progress=progress)
     shape = lines.range_m.shape
     return RawScan(grid=grid, line_stamp_ns=record.line_stamp_ns, range_m=lines.range_m,
                    status=lines.status, intensity=lines.intensity,

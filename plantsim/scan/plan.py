@@ -24,7 +24,8 @@ from plantsim.turntable.encoder import EncoderConfig
 # LidarSpec fields that only the realistic sensor model uses.
 REALISTIC_LIDAR_FIELDS = ("beam_divergence_rad", "beam_exit_diameter_m", "range_resolution_m",
                           "range_sigma_m", "range_sigma_rel", "range_sigma_incidence_gain",
-                          "detection_range_white_m", "edge_range_spread_m")
+                          "detection_range_white_m", "edge_range_spread_m", "noise_law", "range_bias_m",
+                          "range_bias_rel", "range_bias_dark_m", "warmup_drift_m", "warmup_time_constant_s")
 # [turntable] settings that only the servo's physics uses.
 PHYSICS_SCALARS = tuple(f.name for f in dataclasses.fields(TurntableDynamics)
                         if f.name not in ("servo", "jitter"))

@@ -96,7 +96,8 @@ def run_session(*, turntable: Turntable, source, grid: BeamGrid, schedule: StepS
                 t0 = index * schedule.step_time_s if turntable.kinematic else time.time() - started
                 t0 += first_beam_s
                 table_rad = reported - encoder_offset_rad
-                lines = source.cast_lines(np.array([table_rad]), line_rng(seed, index))
+                lines = source.cast_lines(np.array([table_rad]), line_rng(seed, index),
+                                          beam_time_s=t0 + grid.beam_offsets_s()[None, :])
             except HardwareError as exc:
                 raise ScanInterruptedError(
                     f"{exc} [scan stopped at line {index + 1} of {n_lines} ({math.degrees(commanded):g} deg); "

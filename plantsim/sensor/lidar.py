@@ -27,11 +27,16 @@ from plantsim.rig.geometry import beam_dirs_lidar
 from plantsim.rig.scene import Scene
 from plantsim.sensor import casting
 from plantsim.sensor.casting import Backend, Caster, Progress, gate_ranges
-from plantsim.sensor.footprint import coplanar_probes, combine_footprint, subray_pattern, subrays_lidar
+from plantsim.sensor.footprint import (coplanar_probes, combine_footprint, jitter_subrays, subray_pattern,
+                                      subrays_lidar)
 from plantsim.sensor.model import SensorModel, apply_sensor
 from plantsim.sensor.spec import BeamStatus, LidarSpec
 
 log = logging.getLogger(__name__)
+
+# Jittered footprint patterns per beam (see SimulatedLidar): 16 x 19 sub-ray positions a beam.
+FOOTPRINT_VARIANTS = 16
+_VARIANT_SEED = 20261122
 
 
 class Lines(NamedTuple):
@@ -85,14 +90,28 @@ class SimulatedLidar:
         else:
             self.pattern = subray_pattern(model.footprint_rings)
             self.n_sub = self.pattern.n_subrays
+            # Footprints are sampled by stratified jitter (plantsim.sensor.footprint.jitter_subrays)
+            # so that ranges between two surfaces form a continuum: FOOTPRINT_VARIANTS jittered
+            # patterns per beam are drawn once (a fixed generator: the same rays every run),
+            # and each beam of each line uses one of them, chosen with the run's generator.
+            self.n_variants = FOOTPRINT_VARIANTS if self.n_sub > 1 else 1
+            if self.n_variants > 1:
+                offsets, weights = jitter_subrays(self.pattern, np.random.default_rng(_VARIANT_SEED),
+                                                  (self.n_variants, n_beams))
+            else:
+                offsets, weights = None, np.broadcast_to(self.pattern.weights, (1, n_beams, self.n_sub))
+            self.weights = np.asarray(weights)  # (n_variants, n_beams, n_sub)
             origins_lidar, dirs_lidar = subrays_lidar(
                 self.beam_angles_rad, self.pattern, divergence_rad=lidar.beam_divergence_rad,
-                exit_diameter_m=lidar.beam_exit_diameter_m)
+                exit_diameter_m=lidar.beam_exit_diameter_m, offsets=offsets)
+            origins_lidar = np.broadcast_to(origins_lidar, (self.n_variants, n_beams, self.n_sub, 3))
+            dirs_lidar = np.broadcast_to(dirs_lidar, (self.n_variants, n_beams, self.n_sub, 3))
             origins = (origins_lidar @ R.T + origin).reshape(-1, 3)
             dirs = (dirs_lidar @ R.T).reshape(-1, 3)
-            # The axis sub-ray exactly as the ideal sensor casts it.
-            origins[:: self.n_sub] = origin
-            dirs[:: self.n_sub] = beam_dirs_lidar(self.beam_angles_rad) @ R.T
+            if self.n_variants == 1:
+                # The axis sub-ray exactly as the ideal sensor casts it.
+                origins[:: self.n_sub] = origin
+                dirs[:: self.n_sub] = beam_dirs_lidar(self.beam_angles_rad) @ R.T
             self.adaptive = model.adaptive_footprint and self.n_sub > 1
             self.reflectance = model.reflectance_by_class()
         self.caster = Caster(scene, origins, dirs, backend=backend, nthread=nthread)
@@ -113,18 +132,22 @@ class SimulatedLidar:
             m = self.model
             out["effects"] = {
                 "footprint_subrays": self.n_sub, "adaptive_footprint": bool(self.adaptive),
+                "footprint_patterns": self.n_variants,
+                "systematic_error": m.systematic_error,
                 "range_noise": m.range_noise, "quantise": m.quantise, "intensity": m.intensity,
                 "dropouts": m.dropouts}
         return out
 
     def cast_lines(self, table_rad: np.ndarray, rng: np.random.Generator, *,
-                   progress: Progress | None = None) -> Lines:
+                   beam_time_s: np.ndarray | None = None, progress: Progress | None = None) -> Lines:
         """The sensor's report for lines cast at true turntable angles.
 
         Args:
           table_rad: (n_lines,) one angle per line (the table at rest), or
             (n_lines, n_beams) one per beam, float64 radians.
           rng: the run's generator (the sensor model's only source of randomness).
+          beam_time_s: (n_lines, n_beams) float64, each beam's time since the
+            scan's start (the sensor's warm-up drift); None: all at the start.
           progress: called with (lines done, lines total).
         """
         theta = np.asarray(table_rad, dtype=np.float64)
@@ -136,9 +159,10 @@ class SimulatedLidar:
             geom = hits.geom_id
             intensity = None
         else:
-            fp, geom = self._footprints(theta, progress)
+            fp, geom = self._footprints(theta, rng, progress)
             range_m, status, intensity = apply_sensor(fp.range_m, fp.power, fp.cos_incidence,
-                                                      fp.spread_m, self.lidar, self.model, rng)
+                                                      fp.spread_m, self.lidar, self.model, rng,
+                                                      hit_class=self.scene.geom_class[geom], line_time_s=beam_time_s)
             too_near = int((status == BeamStatus.TOO_NEAR).sum())
             if too_near > (status == BeamStatus.OK).sum():
                 log.warning("%d beams returned nearer than %s's range_min_m (%g m), more than gave a "
@@ -158,17 +182,21 @@ class SimulatedLidar:
                             np.take_along_axis(geom, dom[..., None], axis=-1)[..., 0], -1)
         return ret, geom_dom
 
-    def _footprints(self, theta: np.ndarray, progress: Progress | None):
+    def _footprints(self, theta: np.ndarray, rng: np.random.Generator, progress: Progress | None):
         """Combined footprint returns per beam: (FootprintReturn of (n_lines, n_beams), geom)."""
+        from plantsim.sensor.footprint import FootprintReturn
+
         n_lines, n_beams, S = len(theta), len(self.beam_angles_rad), self.n_sub
         per_beam = theta if theta.ndim == 2 else np.broadcast_to(theta[:, None], (n_lines, n_beams))
         pattern = self.pattern
         probe = pattern.probe if self.adaptive else np.arange(S)
         rest = np.setdiff1d(np.arange(S), probe)
-        beam_ids = np.arange(n_beams)[:, None] * S
-        probe_ids = (beam_ids + probe[None, :]).reshape(-1)  # (n_beams * n_probe,)
-        origins = self.caster.origins_base.reshape(n_beams, S, 3)
-        dirs = self.caster.dirs_base.reshape(n_beams, S, 3)
+        beams = np.arange(n_beams)
+        variant = (rng.integers(self.n_variants, size=(n_lines, n_beams)) if self.n_variants > 1
+                   else np.zeros((n_lines, n_beams), dtype=np.int64))
+        first_id = (variant * n_beams + beams) * S  # the id of each footprint's sub-ray 0
+        origins = self.caster.origins_base.reshape(self.n_variants, n_beams, S, 3)
+        dirs = self.caster.dirs_base.reshape(self.n_variants, n_beams, S, 3)
         keys = ("range_m", "power", "cos_incidence", "spread_m")
         out = {k: np.full((n_lines, n_beams), np.nan) for k in keys}
         geom_out = np.full((n_lines, n_beams), -1, dtype=np.int32)
@@ -177,36 +205,36 @@ class SimulatedLidar:
         for lo in range(0, n_lines, chunk):
             hi = min(lo + chunk, n_lines)
             c = hi - lo
+            var = variant[lo:hi]
+            ids = (first_id[lo:hi, :, None] + probe[None, None, :]).reshape(c, -1)
             th = np.repeat(per_beam[lo:hi], len(probe), axis=1)
-            hits = self.caster.cast(np.broadcast_to(probe_ids, (c, len(probe_ids))), th, normals=True)
+            hits = self.caster.cast(ids, th, normals=True)
             d = hits.dist_m.reshape(c, n_beams, len(probe))
             g = hits.geom_id.reshape(c, n_beams, len(probe))
             nrm = hits.normal_base.reshape(c, n_beams, len(probe), 3)
+            o_fp, d_fp = origins[var, beams], dirs[var, beams]  # (c, n_beams, S, 3)
             if self.adaptive:
-                hit = origins[None, :, probe] + np.maximum(d, 0)[..., None] * dirs[None, :, probe]
+                hit = o_fp[:, :, probe] + np.maximum(d, 0)[..., None] * d_fp[:, :, probe]
                 refine = ~coplanar_probes(hit, nrm, g, tolerance_m=self.model.flat_tolerance_m)
                 # Flat footprints: the axis ray stands for the whole footprint.
-                ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1],
-                                              dirs[None, :, :1], np.ones(1))
+                ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1], d_fp[:, :, :1], np.ones(1))
             else:
                 refine = np.zeros((c, n_beams), dtype=bool)
-                ret, geom_dom = self._combine(d, g, nrm, dirs[None], pattern.weights)
+                ret, geom_dom = self._combine(d, g, nrm, d_fp, self.weights[var, beams])
             for k in keys:
                 out[k][lo:hi] = getattr(ret, k)
             geom_out[lo:hi] = geom_dom
             if refine.any():
-                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest)
+                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest, var, d_fp)
             if progress is not None:
                 progress(hi, n_lines)
-        from plantsim.sensor.footprint import FootprintReturn
-
-        log.debug("footprint: %d of %d beams refined with %d sub-rays", self.n_refined,
-                  n_lines * n_beams, S)
+        log.debug("footprint: %d of %d beams refined with %d sub-rays", self.n_refined, n_lines * n_beams, S)
         return FootprintReturn(dominant=None, **out), geom_out
 
-    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest):
+    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest, var, d_fp):
         """Casts the other sub-rays of the flagged beams and combines all of them."""
         S = self.n_sub
+        n_beams = refine.shape[1]
         line_of, beam_of = np.nonzero(refine)
         self.n_refined += len(line_of)
         counts = refine.sum(axis=1)
@@ -214,8 +242,9 @@ class SimulatedLidar:
         starts = np.cumsum(counts) - counts
         pos = np.arange(len(line_of)) - np.repeat(starts, counts)
         c, n_rest = refine.shape[0], len(rest)
+        variant = var[line_of, beam_of]
         ids = np.full((c, m, n_rest), self.caster.pad_id, dtype=np.int64)
-        ids[line_of, pos] = beam_of[:, None] * S + rest[None, :]
+        ids[line_of, pos] = ((variant * n_beams + beam_of) * S)[:, None] + rest[None, :]
         th = np.zeros((c, m, n_rest))
         th[line_of, pos] = theta[line_of, beam_of][:, None]
         hits = self.caster.cast(ids.reshape(c, m * n_rest), th.reshape(c, m * n_rest), normals=True)
@@ -229,8 +258,8 @@ class SimulatedLidar:
         dist[:, probe], geom[:, probe], normal[:, probe] = d[line_of, beam_of], g[line_of, beam_of], \
             nrm[line_of, beam_of]
         dist[:, rest], geom[:, rest], normal[:, rest] = d2, g2, n2
-        dirs = self.caster.dirs_base.reshape(-1, S, 3)[beam_of]
-        ret, geom_dom = self._combine(dist, geom, normal, dirs, self.pattern.weights)
+        ret, geom_dom = self._combine(dist, geom, normal, d_fp[line_of, beam_of],
+                                      self.weights[variant, beam_of])
         rows = lo + line_of
         for key in ("range_m", "power", "cos_incidence", "spread_m"):
             out[key][rows, beam_of] = getattr(ret, key)
