@@ -158,3 +158,17 @@ def test_mesh_over_200k_faces_compiles_and_scans():
     centre = np.array([0, 0, 0.05])
     r = np.linalg.norm(points - centre, axis=1)
     assert len(points) > 100 and np.abs(r - 0.05).max() < 2e-6  # chord error of the facets
+
+
+def test_vertex_deduplication_is_numpys_unique():
+    from plantsim.plant.mesh import unique_rows
+    from plantsim.resources import bundled_plant_path
+    from plantsim.plant.mesh import binary_stl_arrays
+
+    rng = np.random.default_rng(0)
+    grid = rng.integers(0, 5, size=(5000, 3)).astype(np.float64) * 0.25  # many exact duplicates
+    for vertices in (grid, binary_stl_arrays(bundled_plant_path("maize").read_bytes())[0]):
+        expected, expected_inverse = np.unique(vertices, axis=0, return_inverse=True)
+        unique, inverse = unique_rows(vertices)
+        np.testing.assert_array_equal(unique, expected)
+        np.testing.assert_array_equal(inverse, expected_inverse.reshape(-1))

@@ -151,6 +151,8 @@ REFUSED = [
     ({"turntable": {"encoder": {"ticks_per_rev": 1024}}}, True, r"\[turntable.encoder\] ticks_per_rev describes"),
     ({"turntable": {"mode": "continuous"}}, True, "continuous rig scans need a LiDAR that streams"),
     ({"scan": {"step_time_s": 1.0}}, True, r"step_time_s describes the simulated turntable"),
+    ({"plant": {"areal_density_kg_m2": 0.5}, "turntable": {"physics": "kinematic"}}, False,
+     r"\[plant\] areal_density_kg_m2 needs the servo's physics"),
 ]
 
 

@@ -95,7 +95,7 @@ def _set_rig_geometry(spec: mujoco.MjSpec, rig: RigGeometry, T_base_lidar: np.nd
     post.pos = [post_xy[0], post_xy[1], bench_top_z + half]
 
 
-def _add_plant(spec: mujoco.MjSpec, plant: PlantMesh, areal_density_kg_m2: float) -> None:
+def _add_plant(spec: mujoco.MjSpec, plant: PlantMesh, areal_density_kg_m2: float | None) -> None:
     vertices_turntable = plant.vertices_turntable
     if len(vertices_turntable) < 4:
         # MuJoCo wants at least 4 vertices in a mesh; a lone triangle gets an unused
@@ -105,8 +105,13 @@ def _add_plant(spec: mujoco.MjSpec, plant: PlantMesh, areal_density_kg_m2: float
                          userface=plant.faces.ravel())
     # Thin open leaves have no volume: MuJoCo must not try a volumetric inertia.
     mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
-    mass, com, inertia = shell_inertia(vertices_turntable, plant.faces,
-                                       areal_density_kg_m2=areal_density_kg_m2)
+    if areal_density_kg_m2 is None:
+        # No physics will run: a token inertial (MuJoCo needs a valid body), not the
+        # plant's real one, which costs a pass over every triangle.
+        mass, com, inertia = 1e-3, vertices_turntable.mean(axis=0), 1e-9 * np.eye(3)
+    else:
+        mass, com, inertia = shell_inertia(vertices_turntable, plant.faces,
+                                           areal_density_kg_m2=areal_density_kg_m2)
     # A line-like mesh has a vanishing principal moment; keep it positive.
     floor = max(1e-12, 1e-9 * float(np.trace(inertia)))
     inertia = inertia + floor * np.eye(3)
@@ -119,14 +124,15 @@ def _add_plant(spec: mujoco.MjSpec, plant: PlantMesh, areal_density_kg_m2: float
 
 
 def build_spec(rig: RigGeometry, plant: PlantMesh | None = None, *,
-               plant_areal_density_kg_m2: float = 0.3) -> mujoco.MjSpec:
+               plant_areal_density_kg_m2: float | None = 0.3) -> mujoco.MjSpec:
     """The scene as an editable MjSpec (before compilation).
 
     Args:
       rig: rig geometry.
       plant: the plant to put on the turntable, or None.
       plant_areal_density_kg_m2: mass per leaf area for the plant's explicit
-        inertial (a fresh maize leaf is ~0.2-0.3 kg/m^2).
+        inertial (a fresh maize leaf is ~0.2-0.3 kg/m^2); None for a scene that
+        runs no physics (a token inertial).
     """
     spec = mujoco.MjSpec.from_file(str(data_path("mjcf/scene.xml")))
     _set_rig_geometry(spec, rig, rig.T_base_lidar())
@@ -155,7 +161,12 @@ def compile_scene(spec: mujoco.MjSpec, rig: RigGeometry, plant: PlantMesh | None
 
 
 def build_scene(rig: RigGeometry, plant: PlantMesh | None = None, *,
-                plant_areal_density_kg_m2: float = 0.3) -> Scene:
-    """Builds and compiles the static scan scene (no actuator, kinematics only)."""
+                plant_areal_density_kg_m2: float | None = None) -> Scene:
+    """Builds and compiles the static scan scene (no actuator, kinematics only).
+
+    The plant gets a token inertial unless ``plant_areal_density_kg_m2`` is given:
+    a kinematic scan never uses it (:func:`plantsim.turntable.dynamics.build_dynamic_scene`
+    computes the real one).
+    """
     spec = build_spec(rig, plant, plant_areal_density_kg_m2=plant_areal_density_kg_m2)
     return compile_scene(spec, rig, plant)

@@ -199,7 +199,7 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
                                      plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
         scene = dscene.scene
     else:
-        scene = build_scene(config.rig, plant, plant_areal_density_kg_m2=config.plant.areal_density_kg_m2)
+        scene = build_scene(config.rig, plant)  # kinematic: no physics, no plant inertia
     grid = BeamGrid.of(config.lidar)
     source = SimulatedLidar(scene, config.lidar, grid.beam_angles_rad(),
                             model=None if plan.sensor == "ideal" else config.sensor_model,

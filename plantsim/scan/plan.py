@@ -101,6 +101,8 @@ def _physics_settings(config: RunConfig, mode: str) -> list[str]:
             if getattr(dyn.jitter, f.name) != getattr(JitterConfig(), f.name):
                 keys.append(f"turntable.jitter.{f.name}")
     keys += [k for k in _given_under(config, "turntable.dynamics", PHYSICS_SCALARS)]
+    if given(config, "plant.areal_density_kg_m2"):  # the plant's inertia: only physics uses it
+        keys.append("plant.areal_density_kg_m2")
     return [k.replace("turntable.dynamics.", "turntable.") for k in keys]
 
 
