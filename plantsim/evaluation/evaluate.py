@@ -223,7 +223,7 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
 
 def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
                   truth_path: str | Path | None = None) -> Evaluation:
-    """Measures a :class:`plantsim.pipeline.ScanResult` (its plant-class points).
+    """Measures a :class:`plantsim.scan.pipeline.ScanResult` (its plant-class points).
 
     Args:
         result: the scan.

@@ -4,7 +4,7 @@ A :class:`Sweep` is data: the plants, a grid of settings (each a name from
 :data:`SETTINGS` and the values to try) and the fixed configuration the grid
 overrides. :meth:`Sweep.runs` expands the grid (every plant x every combination);
 :func:`run_study` runs them in parallel on the local cores (one process per
-core, each casting on one thread), each run being :func:`plantsim.pipeline.run_scan`
+core, each casting on one thread), each run being :func:`plantsim.scan.pipeline.run_scan`
 followed by :func:`plantsim.evaluate.evaluate_scan`. Every run gives one flat row:
 its settings, wall time, CPU time, simulated rig time and every metric and trait
 error; :func:`rows_to_csv` writes them, :func:`pareto_front` finds the runs no other

@@ -3,7 +3,7 @@ it on the turntable.
 
 The result records ``T_turntable_mesh``: the rigid 4x4 transform from the mesh
 file's coordinates (scaled to metres) to the turntable frame (origin on the
-axis at the disk top, +Z up; see :mod:`plantsim.rig`).
+axis at the disk top, +Z up; see :mod:`plantsim.rig.geometry`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The turntable as a physical system: the servo, its jitter, and the physics loop.
 
 The servo itself (settings in SI and Dynamixel registers, the firmware's motion
-profile) is :mod:`plantsim.servo`; this module puts it into the scan scene:
+profile) is :mod:`plantsim.turntable.servo`; this module puts it into the scan scene:
 
 - The turntable hinge gets the servo's reflected armature, viscous damping plus
   back-EMF (``stall_torque / no_load_speed``: a PWM-driven DC motor at fixed duty
