@@ -66,6 +66,22 @@ DEFAULT_SERVO = ServoConfig.xm430_w350(
     profile_velocity=units.velocity_units_to_rad_s(50),
     profile_acceleration=units.acceleration_units_to_rad_s2(20))
 
+# Shortest timestep accepted, s: below it even a short scan needs ~1e8 steps.
+MIN_TIMESTEP_S = 1e-6
+DEFAULT_TIMESTEP_S = 1e-3
+# Physics steps the cogging ripple needs per period: below 2 (Nyquist) the
+# sampled ripple folds towards DC and pushes the table like a slow torque (at
+# 1.13 steps a period, 5 rpm with timestep 5e-3 s, the table jitter was 88,230
+# urad instead of 34); 2.5 leaves a margin.
+MIN_STEPS_PER_PERIOD = 2.5
+# Alternations of the velocity error beyond +-max_velocity_error_rad_s within
+# oscillation_window_s that count as a sustained oscillation (3 full swings).
+OSCILLATION_SWINGS = 6
+# Floor of the servo output body's own inertia with backlash, as a fraction of
+# the table's: with armature = 0 the output body was weightless and the backlash
+# stop could not hold it (the table ended 48 degrees behind the servo).
+OUTPUT_INERTIA_FLOOR_FRACTION = 0.1
+
 # Dry friction of the turntable's own bearing, N m (only with backlash, where the
 # table has its own hinge).
 TABLE_BEARING_FRICTION_NM = 0.002
@@ -138,6 +154,16 @@ class TurntableDynamics:
         simulation diverged).
       spinup_margin_s: continuous mode: time after the ramp to full speed before
         the first line, for the loop's transient to decay.
+      max_play_excess_rad: the scan stops if the table is ever further than
+        this beyond the gear's play from the servo shaft (the backlash stop
+        gave way), radians.
+      max_velocity_error_rad_s: sustained oscillation: the scan stops when the
+        table's velocity swings beyond +- this around the profile's velocity
+        ``OSCILLATION_SWINGS`` times within ``oscillation_window_s``.
+      oscillation_window_s: see ``max_velocity_error_rad_s``, s.
+      max_physics_steps: a run stops before taking more physics steps than
+        this (a timestep far too small for the scan would otherwise run for
+        hours and fill the memory with its record).
     """
 
     servo: ServoConfig = DEFAULT_SERVO
@@ -149,6 +175,10 @@ class TurntableDynamics:
     settle_timeout_s: float = 2.0
     max_tracking_error_rad: float = 0.2
     spinup_margin_s: float = 0.3
+    max_play_excess_rad: float = math.radians(0.1)
+    max_velocity_error_rad_s: float = 0.5
+    oscillation_window_s: float = 1.0
+    max_physics_steps: int = 4_000_000
 
     def __post_init__(self):
         if not isinstance(self.servo, ServoConfig):
@@ -156,11 +186,20 @@ class TurntableDynamics:
         if not isinstance(self.jitter, JitterConfig):
             raise ValueError(f"jitter must be a JitterConfig, got {type(self.jitter).__name__}")
         for name in ("timestep_s", "settle_tolerance_rad", "settle_velocity_rad_s",
-                     "settle_timeout_s", "max_tracking_error_rad"):
+                     "settle_timeout_s", "max_tracking_error_rad", "max_play_excess_rad",
+                     "max_velocity_error_rad_s", "oscillation_window_s"):
             _check_number("", name, getattr(self, name), strict=True)
         _check_number("", "spinup_margin_s", self.spinup_margin_s)
         if self.timestep_s > 0.05:
             raise ValueError(f"timestep_s must be at most 0.05 s, got {self.timestep_s}")
+        if self.timestep_s < MIN_TIMESTEP_S:
+            raise ValueError(
+                f"timestep_s must be at least {MIN_TIMESTEP_S:g} s, got {self.timestep_s:g}: a 1-rpm "
+                f"turn would take {60 / self.timestep_s:.3g} physics steps; the default "
+                f"{DEFAULT_TIMESTEP_S:g} s resolves the servo (see docs/turntable-dynamics.md)")
+        p = self.max_physics_steps
+        if isinstance(p, bool) or not isinstance(p, int) or p < 1:
+            raise ValueError(f"max_physics_steps must be a positive integer, got {p!r}")
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
 
@@ -223,6 +262,12 @@ def add_servo(spec: mujoco.MjSpec, dynamics: TurntableDynamics) -> None:
         servo_joint = spec.joint("servo")
         half = math.radians(jitter.backlash_deg) / 2
         tendon = spec.add_tendon(name="backlash", limited=1, range=[-half, half])
+        # A stiff stop: the fastest the integrator resolves (time constant of two
+        # timesteps, critically damped) and full impedance from the first
+        # micro-radian of penetration, so the play holds down to small plays
+        # (the default soft limit let a 1-degree play open to 1.44 degrees).
+        tendon.solref_limit = [2 * dynamics.timestep_s, 1.0]
+        tendon.solimp_limit = [0.99, 0.999, 1e-6, 0.5, 2.0]
         tendon.wrap_joint("turntable", 1.0)
         tendon.wrap_joint("servo", -1.0)
         # The table's own bearing: a little dry friction, so it rests where the
@@ -265,6 +310,20 @@ def build_dynamic_scene(rig: RigGeometry, plant: PlantMesh | None, dynamics: Tur
     m = scene.model
     servo_name = "servo" if dynamics.jitter.backlash_deg > 0 else "turntable"
     servo_joint = m.joint(servo_name).id
+    if dynamics.jitter.backlash_deg > 0:
+        # Floor inertia on the servo side of the gear (see OUTPUT_INERTIA_FLOOR_FRACTION).
+        data = mujoco.MjData(m)
+        mujoco.mj_forward(m, data)
+        M = np.zeros((m.nv, m.nv))
+        mujoco.mj_fullM(m, data, M)
+        table_dof = int(m.jnt_dofadr[m.joint("turntable").id])
+        servo_dof = int(m.jnt_dofadr[servo_joint])
+        floor = OUTPUT_INERTIA_FLOOR_FRACTION * float(M[table_dof, table_dof])
+        if m.dof_armature[servo_dof] < floor:
+            log.info("servo armature %.3g kg m^2 raised to the backlash floor %.3g kg m^2",
+                     m.dof_armature[servo_dof], floor)
+            m.dof_armature[servo_dof] = floor
+            mujoco.mj_setConst(m, data)  # the constraints' inverse weights depend on it
     noise_adr = (int(m.actuator_ctrladr[m.actuator("torque_noise").id])
                  if dynamics.jitter.torque_noise_nm > 0 else -1)
     return DynamicScene(
@@ -296,6 +355,13 @@ def check_stability(dscene: DynamicScene) -> None:
     g = torque_gains(d.servo)
     inertia = driven_inertia(dscene)
     dt = d.timestep_s
+    jitter = d.jitter
+    if jitter.torque_noise_nm > 0 and jitter.torque_noise_period_s < dt:
+        raise SimulationError(
+            f"the torque noise is not resolved by the timestep: torque_noise_period_s "
+            f"({jitter.torque_noise_period_s:g} s) is shorter than timestep_s ({dt:g} s), so each "
+            f"step would see a fresh sample and the noise's bandwidth would be the timestep's; use "
+            f"torque_noise_period_s >= {dt:g} or a smaller timestep_s")
     omega = math.sqrt(g["kp"] / inertia)
     limit = _MAX_OMEGA_DT[d.integrator]
     if omega * dt > limit:
@@ -328,6 +394,9 @@ class Trajectory:
         measures; equal to ``table_rad`` without backlash).
       shaft_velocity_rad_s: (n,) float64.
       setpoint_rad: (n,) float64, the profile's position setpoint.
+      table_velocity_rad_s: (n,) float64, the turntable's true velocity (None
+        for trajectories made elsewhere).
+      setpoint_velocity_rad_s: (n,) float64, the profile's velocity (or None).
     """
 
     time_s: np.ndarray
@@ -335,26 +404,40 @@ class Trajectory:
     shaft_rad: np.ndarray
     shaft_velocity_rad_s: np.ndarray
     setpoint_rad: np.ndarray
+    table_velocity_rad_s: np.ndarray | None = None
+    setpoint_velocity_rad_s: np.ndarray | None = None
 
     def table_at(self, t_s: np.ndarray) -> np.ndarray:
         """True table angle at any times (linear between physics steps), radians."""
         return np.interp(t_s, self.time_s, self.table_rad)
 
 
+_REC_T, _REC_TABLE, _REC_SHAFT, _REC_SHAFT_V, _REC_SET, _REC_TABLE_V, _REC_SET_V = range(7)
+
+
 class TurntableSim:
     """Steps the dynamic scene under the servo's motion profile and records it.
+
+    The physics runs in chunks of ``chunk_steps`` steps inside MuJoCo
+    (:func:`mujoco.rollout.rollout` with the chunk's control sequence: the
+    profile's setpoint, velocity and feed-forward, and the held torque noise,
+    one row per step), so a 1-rpm turn is ~60 calls instead of 60,000. After
+    each chunk every step is checked (:meth:`_check`); a stop names the step's
+    time, the cause and a fix.
 
     Args:
       dscene: from :func:`build_dynamic_scene`.
       rng: the run's random generator (torque noise).
-      chunk_steps: physics steps between stability checks.
+      chunk_steps: physics steps per MuJoCo call (and between checks).
 
     Raises:
       SimulationError: from :func:`check_stability`, before any step.
     """
 
-    def __init__(self, dscene: DynamicScene, rng: np.random.Generator, *, chunk_steps: int = 200):
+    def __init__(self, dscene: DynamicScene, rng: np.random.Generator, *, chunk_steps: int = 1000):
         check_stability(dscene)
+        if isinstance(chunk_steps, bool) or not isinstance(chunk_steps, int) or chunk_steps < 1:
+            raise ValueError(f"chunk_steps must be a positive integer, got {chunk_steps!r}")
         self.dscene = dscene
         self.model = dscene.scene.model
         self.data = mujoco.MjData(self.model)
@@ -364,9 +447,20 @@ class TurntableSim:
         self.steps = 0
         self.profile: Profile = plan_profile(0.0, 0.0)
         self._gains = torque_gains(dscene.dynamics.servo)
-        self._records: list[np.ndarray] = [np.zeros((1, 5))]
-        self._noise_t_end = 0.0
+        self._records: list[np.ndarray] = [np.zeros((1, 7))]
         self._noise_values = np.zeros(0)
+        m = self.model
+        self._table_qa = int(m.jnt_qposadr[m.joint("turntable").id])
+        self._spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self._qpos0 = mujoco.mj_stateSize(m, int(mujoco.mjtState.mjSTATE_TIME))
+        self._qvel0 = mujoco.mj_stateSize(m, int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS))
+        self._state = np.empty(mujoco.mj_stateSize(m, self._spec))
+        self._swing_times: list[float] = []
+        self._last_sign = 0
+        dyn = dscene.dynamics
+        self._half_play = math.radians(dyn.jitter.backlash_deg) / 2
+        self._ripple_periods = (int(round(dyn.servo.gear_ratio * dyn.jitter.ripple_periods_per_motor_rev))
+                                if dyn.jitter.ripple_torque_nm > 0 else 0)
 
     @property
     def time_s(self) -> float:
@@ -380,15 +474,62 @@ class TurntableSim:
     def shaft_velocity_rad_s(self) -> float:
         return float(self.data.qvel[self.dscene.servo_dof_adr])
 
+    @property
+    def table_rad(self) -> float:
+        return float(self.data.qpos[self._table_qa])
+
+    def _resolution_fix(self, speed_rad_s: float, minimum: float = MIN_STEPS_PER_PERIOD) -> str | None:
+        """Why the cogging ripple is not resolved at this speed, or None.
+
+        ``minimum`` steps a period are asked of the planned speed; the speed
+        actually reached (which overshoots the plan a little) is held to 2.
+        """
+        if not self._ripple_periods or speed_rad_s <= 0:
+            return None
+        period = 2 * math.pi / (self._ripple_periods * speed_rad_s)
+        if period >= minimum * self.dt:
+            return None
+        return (f"the cogging ripple is not resolved by the timestep: {self._ripple_periods} periods a "
+                f"turn at {speed_rad_s:.3g} rad/s last {period:.3g} s, {period / self.dt:.3g} timesteps "
+                f"(at least {minimum:g} needed); use timestep_s <= "
+                f"{period / MIN_STEPS_PER_PERIOD:.3g}")
+
     def command(self, goal_rad: float, *, profile_velocity_rad_s: float | None = None) -> Profile:
-        """Sets a new goal now; the profile blends from the current setpoint."""
-        servo = self.dscene.dynamics.servo
+        """Sets a new goal now; the profile blends from the current setpoint.
+
+        Raises:
+          SimulationError: the profile's speed is above what the servo can reach
+            (its top speed at full duty against its own losses), or the cogging
+            ripple at that speed is not resolved by the timestep.
+        """
+        dyn = self.dscene.dynamics
+        servo = dyn.servo
+        cap = servo.profile_velocity if profile_velocity_rad_s is None else profile_velocity_rad_s
         p, v, _ = self.profile.sample(self.time_s)
-        self.profile = plan_profile(
+        profile = plan_profile(
             p, goal_rad, start_velocity=v, start_time=self.time_s,
-            max_velocity=servo.profile_velocity if profile_velocity_rad_s is None else profile_velocity_rad_s,
-            max_acceleration=servo.profile_acceleration)
-        return self.profile
+            max_velocity=cap, max_acceleration=servo.profile_acceleration)
+        peak = float(np.max(np.abs(profile.segment_velocities))) if profile.segment_velocities.size else 0.0
+        if profile.segment_velocities.size:
+            peak = max(peak, float(np.max(np.abs(profile.segment_velocities + profile.segment_accelerations
+                                                  * np.diff(np.append(profile.segment_times,
+                                                                      profile.duration))))))
+        if math.isfinite(cap):
+            top = servo.top_speed_rad_s(
+                extra_friction=TABLE_BEARING_FRICTION_NM if dyn.jitter.backlash_deg > 0 else 0.0)
+            if peak > top:
+                raise SimulationError(
+                    f"the servo cannot turn at {peak:.4g} rad/s ({peak * 60 / (2 * math.pi):.4g} rpm): its "
+                    f"top speed at full duty against its losses is {top:.4g} rad/s "
+                    f"({top * 60 / (2 * math.pi):.4g} rpm; rated no-load "
+                    f"{servo.no_load_speed * 60 / (2 * math.pi):.3g} rpm); choose rpm <= "
+                    f"{0.9 * top * 60 / (2 * math.pi):.3g} (90 % of the top, leaving duty for the loop) or a "
+                    f"faster servo")
+            why = self._resolution_fix(peak)
+            if why:
+                raise SimulationError(why)
+        self.profile = profile
+        return profile
 
     def _noise(self, t: np.ndarray) -> np.ndarray:
         period = self.dscene.dynamics.jitter.torque_noise_period_s
@@ -401,64 +542,152 @@ class TurntableSim:
         return self._noise_values[k]
 
     def advance(self, n_steps: int) -> None:
-        """Runs ``n_steps`` physics steps, checking stability every chunk.
+        """Runs ``n_steps`` physics steps in chunks, checking every step of each chunk.
 
         Raises:
-          SimulationError: on a non-finite state, a MuJoCo warning, or a tracking
-            error beyond ``max_tracking_error_rad``; the message names the fix.
+          SimulationError: the run would exceed ``max_physics_steps`` (before any
+            step), or a check failed (see :meth:`_check`); the message names the
+            time of the first bad step, the cause and a fix.
         """
+        from mujoco import rollout
+
+        dyn = self.dscene.dynamics
+        if self.steps + n_steps > dyn.max_physics_steps:
+            raise SimulationError(
+                f"the turntable simulation would take {self.steps + n_steps:,} physics steps "
+                f"({(self.steps + n_steps) * self.dt:.4g} s of rig time at timestep_s = {self.dt:g}), more "
+                f"than max_physics_steps ({dyn.max_physics_steps:,}; about "
+                f"{dyn.max_physics_steps * 5e-6 / 60:.0f} min and {dyn.max_physics_steps * 56 / 1e9:.2g} GB); "
+                f"use a larger timestep_s (the default {DEFAULT_TIMESTEP_S:g} s resolves the servo), a "
+                f"shorter scan, or raise max_physics_steps")
         m, d, ds = self.model, self.data, self.dscene
         g = self._gains
         qa, va = ds.servo_qpos_adr, ds.servo_dof_adr
-        table_qa = int(m.jnt_qposadr[m.joint("turntable").id])
+        tq = self._table_qa
+        tv = ds.table_dof_adr
         ca, na = ds.servo_ctrl_adr, ds.noise_ctrl_adr
+        q0, v0 = self._qpos0, self._qvel0
         done = 0
         while done < n_steps:
             n = min(self.chunk_steps, n_steps - done)
             t = (self.steps + np.arange(n)) * self.dt
             p_ref, v_ref, a_ref = self.profile.sample(t)
-            ff = g["kff_vel"] * v_ref + g["kff_acc"] * a_ref
-            ctrl = np.stack([p_ref, v_ref, ff], axis=1)
-            noise = self._noise(t) if na >= 0 else None
-            rec = np.empty((n, 5))
-            for i in range(n):
-                d.ctrl[ca:ca + 3] = ctrl[i]
-                if noise is not None:
-                    d.ctrl[na] = noise[i]
-                mujoco.mj_step(m, d)
-                rec[i, 1] = d.qpos[table_qa]
-                rec[i, 2] = d.qpos[qa]
-                rec[i, 3] = d.qvel[va]
+            ctrl = np.zeros((n, m.nu))
+            ctrl[:, ca] = p_ref
+            ctrl[:, ca + 1] = v_ref
+            ctrl[:, ca + 2] = g["kff_vel"] * v_ref + g["kff_acc"] * a_ref
+            if na >= 0:
+                ctrl[:, na] = self._noise(t)
+            mujoco.mj_getState(m, d, self._state, self._spec)
+            states, _ = rollout.rollout(m, d, self._state[None], ctrl[None],
+                                        control_spec=int(mujoco.mjtState.mjSTATE_CTRL))
+            states = states[0]
+            mujoco.mj_setState(m, d, states[-1], self._spec)
+            d.ctrl[:] = ctrl[-1]
+            rec = np.empty((n, 7))
+            rec[:, _REC_TABLE] = states[:, q0 + tq]
+            rec[:, _REC_SHAFT] = states[:, q0 + qa]
+            rec[:, _REC_SHAFT_V] = states[:, v0 + va]
+            rec[:, _REC_TABLE_V] = states[:, v0 + tv]
             self.steps += n
-            rec[:, 0] = (self.steps - n + 1 + np.arange(n)) * self.dt
-            rec[:, 4] = self.profile.sample(rec[:, 0])[0]
+            rec[:, _REC_T] = (self.steps - n + 1 + np.arange(n)) * self.dt
+            p_after, v_after, _ = self.profile.sample(rec[:, _REC_T])
+            rec[:, _REC_SET] = p_after
+            rec[:, _REC_SET_V] = v_after
             self._records.append(rec)
             done += n
             self._check(rec)
 
+    def _stop(self, rec: np.ndarray, i: int, what: str) -> SimulationError:
+        return SimulationError(f"{what} at t = {rec[i, _REC_T]:.6g} s (physics step "
+                               f"{self.steps - len(rec) + 1 + i:,})")
+
     def _check(self, rec: np.ndarray) -> None:
-        d, dyn = self.data, self.dscene.dynamics
-        fix = (f"use a smaller timestep_s (now {dyn.timestep_s:g} s)"
-               + ("" if dyn.integrator == "implicitfast" else " or integrator = \"implicitfast\""))
-        if not np.all(np.isfinite(rec)):
-            raise SimulationError(f"the turntable simulation diverged (non-finite state) near "
-                                  f"t = {rec[0, 0]:.4g} s; {fix}")
-        warned = [mujoco.mjtWarning(i).name for i, w in enumerate(d.warning) if w.number]
-        if warned:
-            raise SimulationError(f"MuJoCo warned during the turntable simulation near "
-                                  f"t = {rec[-1, 0]:.4g} s ({', '.join(warned)}); {fix}")
-        error = np.abs(rec[:, 2] - rec[:, 4])
-        worst = int(np.argmax(error))
-        if error[worst] > dyn.max_tracking_error_rad:
+        """Checks every step of a chunk; raises at the first bad one.
+
+        Checks: a finite state; shaft and table within ``max_tracking_error_rad``
+        of the setpoint (the table also within the play); the table within
+        ``max_play_excess_rad`` beyond the play from the shaft; no sustained
+        oscillation of the table's velocity about the profile's; the cogging
+        ripple resolved at the speed actually reached.
+        """
+        dyn = self.dscene.dynamics
+        fix_dt = (f"use a smaller timestep_s (now {dyn.timestep_s:g} s)"
+                  + ("" if dyn.integrator == "implicitfast" else " or integrator = \"implicitfast\""))
+        finite = np.all(np.isfinite(rec), axis=1)
+        if not finite.all():
+            i = int(np.argmin(finite))
             raise SimulationError(
-                f"the servo could not follow its profile: tracking error {error[worst]:.4g} rad "
-                f"at t = {rec[worst, 0]:.4g} s exceeds max_tracking_error_rad "
-                f"({dyn.max_tracking_error_rad:g}); the gains may be too low for the friction and "
-                f"load, the torque limit too low for the profile acceleration, or the simulation "
-                f"unstable: raise the position P gain, lower the profile's velocity/acceleration, "
-                f"or {fix}")
+                f"the turntable simulation diverged (non-finite state) at t = {rec[i, _REC_T]:.6g} s "
+                f"(physics step {self.steps - len(rec) + 1 + i:,}); {fix_dt}")
+        bad = []  # (index, message)
+        error = np.abs(rec[:, _REC_SHAFT] - rec[:, _REC_SET])
+        over = np.flatnonzero(error > dyn.max_tracking_error_rad)
+        if over.size:
+            i = int(over[0])
+            bad.append((i, f"the servo could not follow its profile: the shaft's tracking error "
+                           f"{error[i]:.4g} rad exceeds max_tracking_error_rad ({dyn.max_tracking_error_rad:g}) "
+                           f"at t = {rec[i, _REC_T]:.6g} s; the gains may be too low for the friction and load, "
+                           f"the torque limit too low for the profile acceleration, or the simulation unstable: "
+                           f"raise the position P gain, lower the profile's velocity/acceleration, or {fix_dt}"))
+        gap = np.abs(rec[:, _REC_TABLE] - rec[:, _REC_SHAFT]) - self._half_play
+        over = np.flatnonzero(gap > dyn.max_play_excess_rad)
+        if over.size:
+            i = int(over[0])
+            bad.append((i, f"the table left the gear's play: it is {math.degrees(gap[i] + self._half_play):.4g} "
+                           f"deg from the servo shaft, {math.degrees(gap[i]):.3g} deg beyond the half play "
+                           f"({math.degrees(self._half_play):.3g} deg; max_play_excess_rad = "
+                           f"{dyn.max_play_excess_rad:.3g}) at t = {rec[i, _REC_T]:.6g} s: the backlash stop "
+                           f"gave way; raise the servo armature, or {fix_dt}"))
+        table_error = np.abs(rec[:, _REC_TABLE] - rec[:, _REC_SET]) - self._half_play
+        over = np.flatnonzero(table_error > dyn.max_tracking_error_rad)
+        if over.size:
+            i = int(over[0])
+            bad.append((i, f"the table could not follow the profile: {table_error[i] + self._half_play:.4g} rad "
+                           f"from the setpoint (max_tracking_error_rad {dyn.max_tracking_error_rad:g} plus the "
+                           f"half play) at t = {rec[i, _REC_T]:.6g} s; raise the position P gain, lower the "
+                           f"profile's velocity/acceleration, or {fix_dt}"))
+        i = self._oscillation(rec)
+        if i is not None:
+            bad.append((i, f"the turntable oscillates: its velocity swung beyond +-{dyn.max_velocity_error_rad_s:g} "
+                           f"rad/s about the profile's {OSCILLATION_SWINGS} times within "
+                           f"oscillation_window_s ({dyn.oscillation_window_s:g} s), by t = {rec[i, _REC_T]:.6g} s: "
+                           f"the position loop is unstable; lower the position I gain (or P gain), add D gain, "
+                           f"or {fix_dt}"))
+        speed = float(np.max(np.abs(rec[:, _REC_SHAFT_V])))
+        why = self._resolution_fix(speed, 2.0)
+        if why:
+            i = int(np.argmax(np.abs(rec[:, _REC_SHAFT_V])))
+            bad.append((i, f"{why} (the shaft reached this speed at t = {rec[i, _REC_T]:.6g} s)"))
+        if bad:
+            i, message = min(bad, key=lambda b: b[0])
+            raise SimulationError(f"{message} [physics step {self.steps - len(rec) + 1 + i:,}]")
+
+    def _oscillation(self, rec: np.ndarray) -> int | None:
+        """Index of the step that completes a sustained oscillation, or None."""
+        dyn = self.dscene.dynamics
+        e = rec[:, _REC_TABLE_V] - rec[:, _REC_SET_V]
+        thr = dyn.max_velocity_error_rad_s
+        sign = np.where(e > thr, 1, np.where(e < -thr, -1, 0))
+        idx = np.flatnonzero(sign)
+        if not idx.size:
+            return None
+        s = sign[idx]
+        prev = np.concatenate([[self._last_sign], s[:-1]])
+        flips = idx[(s != prev) & (prev != 0)]
+        self._last_sign = int(s[-1])
+        for i in flips:
+            t = float(rec[i, _REC_T])
+            self._swing_times.append(t)
+            recent = [x for x in self._swing_times if x > t - dyn.oscillation_window_s]
+            self._swing_times = recent
+            if len(recent) >= OSCILLATION_SWINGS:
+                return int(i)
+        return None
 
     def trajectory(self) -> Trajectory:
         rec = np.concatenate(self._records)
-        return Trajectory(time_s=rec[:, 0].copy(), table_rad=rec[:, 1].copy(), shaft_rad=rec[:, 2].copy(),
-                          shaft_velocity_rad_s=rec[:, 3].copy(), setpoint_rad=rec[:, 4].copy())
+        return Trajectory(time_s=rec[:, _REC_T].copy(), table_rad=rec[:, _REC_TABLE].copy(),
+                          shaft_rad=rec[:, _REC_SHAFT].copy(), shaft_velocity_rad_s=rec[:, _REC_SHAFT_V].copy(),
+                          setpoint_rad=rec[:, _REC_SET].copy(), table_velocity_rad_s=rec[:, _REC_TABLE_V].copy(),
+                          setpoint_velocity_rad_s=rec[:, _REC_SET_V].copy())
