@@ -478,6 +478,29 @@ class TurntableSim:
     def table_rad(self) -> float:
         return float(self.data.qpos[self._table_qa])
 
+    def _top_speed(self) -> float:
+        dyn = self.dscene.dynamics
+        return dyn.servo.top_speed_rad_s(
+            extra_friction=TABLE_BEARING_FRICTION_NM if dyn.jitter.backlash_deg > 0 else 0.0)
+
+    def reachable_speed_rad_s(self, *, lag: bool = True) -> float:
+        """Fastest profile speed this sim accepts, rad/s.
+
+        The lesser of 90 % of the servo's top speed and, for a loop without I
+        gain, the speed at which the P loop's steady lag (the torque to overcome
+        the losses, less the velocity feed-forward, over kp) reaches 80 % of
+        ``max_tracking_error_rad`` (only with ``lag``: a profile that cruises).
+        """
+        dyn = self.dscene.dynamics
+        servo, g = dyn.servo, self._gains
+        top = self._top_speed()
+        safe = 0.9 * top
+        slope = servo.back_emf_damping + servo.damping - g["kff_vel"]
+        if lag and g["ki"] == 0 and g["kp"] > 0 and slope > 0:
+            friction = servo.frictionloss + (TABLE_BEARING_FRICTION_NM if dyn.jitter.backlash_deg > 0 else 0.0)
+            safe = min(safe, max(0.8 * dyn.max_tracking_error_rad * g["kp"] - friction, 0.0) / slope)
+        return safe
+
     def _resolution_fix(self, speed_rad_s: float, minimum: float = MIN_STEPS_PER_PERIOD) -> str | None:
         """Why the cogging ripple is not resolved at this speed, or None.
 
@@ -514,17 +537,22 @@ class TurntableSim:
             peak = max(peak, float(np.max(np.abs(profile.segment_velocities + profile.segment_accelerations
                                                   * np.diff(np.append(profile.segment_times,
                                                                       profile.duration))))))
-        if math.isfinite(cap):
-            top = servo.top_speed_rad_s(
-                extra_friction=TABLE_BEARING_FRICTION_NM if dyn.jitter.backlash_deg > 0 else 0.0)
-            if peak > top:
+        if math.isfinite(cap) and peak > 0:
+            # The loop's steady lag matters only where the profile cruises (a
+            # continuous scan); a short move never reaches it.
+            cruise = np.diff(np.append(profile.segment_times, profile.duration))[
+                profile.segment_accelerations == 0]
+            safe = self.reachable_speed_rad_s(lag=bool(cruise.size) and float(cruise.max()) > 1.0)
+            rpm = 60 / (2 * math.pi)
+            if peak > safe:
+                top = self._top_speed()
                 raise SimulationError(
-                    f"the servo cannot turn at {peak:.4g} rad/s ({peak * 60 / (2 * math.pi):.4g} rpm): its "
-                    f"top speed at full duty against its losses is {top:.4g} rad/s "
-                    f"({top * 60 / (2 * math.pi):.4g} rpm; rated no-load "
-                    f"{servo.no_load_speed * 60 / (2 * math.pi):.3g} rpm); choose rpm <= "
-                    f"{0.9 * top * 60 / (2 * math.pi):.3g} (90 % of the top, leaving duty for the loop) or a "
-                    f"faster servo")
+                    f"the servo cannot follow {peak:.4g} rad/s ({peak * rpm:.4g} rpm): its top speed at full "
+                    f"duty against its own losses (back-EMF line plus viscous damping) is {top:.4g} rad/s "
+                    f"({top * rpm:.4g} rpm; the rated no-load speed is {servo.no_load_speed * rpm:.3g} rpm), "
+                    f"and the position loop needs a margin to keep its lag within max_tracking_error_rad; "
+                    f"choose rpm <= {math.floor(safe * rpm * 10) / 10:g}, raise the velocity feed-forward or the "
+                    f"position P gain (if below the top speed), or use a faster servo")
             why = self._resolution_fix(peak)
             if why:
                 raise SimulationError(why)
