@@ -538,11 +538,13 @@ class TurntableSim:
                                                   * np.diff(np.append(profile.segment_times,
                                                                       profile.duration))))))
         if math.isfinite(cap) and peak > 0:
-            # The loop's steady lag matters only where the profile cruises (a
-            # continuous scan); a short move never reaches it.
+            # The loop's steady lag matters only where the profile cruises long
+            # enough to reach it (3 of the P loop's slow time constants, c / kp).
             cruise = np.diff(np.append(profile.segment_times, profile.duration))[
                 profile.segment_accelerations == 0]
-            safe = self.reachable_speed_rad_s(lag=bool(cruise.size) and float(cruise.max()) > 1.0)
+            g = self._gains
+            settle = 3 * (servo.back_emf_damping + servo.damping) / g["kp"] if g["kp"] > 0 else math.inf
+            safe = self.reachable_speed_rad_s(lag=bool(cruise.size) and float(cruise.max()) > settle)
             rpm = 60 / (2 * math.pi)
             if peak > safe:
                 top = self._top_speed()
