@@ -548,13 +548,20 @@ class TurntableSim:
             rpm = 60 / (2 * math.pi)
             if peak > safe:
                 top = self._top_speed()
+                limit_rpm = math.floor(safe * rpm * 10) / 10
+                if safe < 0.9 * top:
+                    fix = ("raise the position P gain or the velocity feed-forward"
+                           + (f", or choose rpm <= {limit_rpm:g}" if limit_rpm > 0 else ""))
+                    cause = (f"the position loop's steady lag at that speed would exceed 80 % of "
+                             f"max_tracking_error_rad ({dyn.max_tracking_error_rad:g} rad)")
+                else:
+                    fix = f"choose rpm <= {limit_rpm:g}, or use a faster servo"
+                    cause = "the position loop needs a 10 % margin of duty"
                 raise SimulationError(
                     f"the servo cannot follow {peak:.4g} rad/s ({peak * rpm:.4g} rpm): its top speed at full "
                     f"duty against its own losses (back-EMF line plus viscous damping) is {top:.4g} rad/s "
-                    f"({top * rpm:.4g} rpm; the rated no-load speed is {servo.no_load_speed * rpm:.3g} rpm), "
-                    f"and the position loop needs a margin to keep its lag within max_tracking_error_rad; "
-                    f"choose rpm <= {math.floor(safe * rpm * 10) / 10:g}, raise the velocity feed-forward or the "
-                    f"position P gain (if below the top speed), or use a faster servo")
+                    f"({top * rpm:.4g} rpm; the rated no-load speed is {servo.no_load_speed * rpm:.3g} rpm) "
+                    f"and {cause}; {fix}")
             why = self._resolution_fix(peak)
             if why:
                 raise SimulationError(why)
