@@ -728,3 +728,103 @@ class TurntableSim:
                           shaft_rad=rec[:, _REC_SHAFT].copy(), shaft_velocity_rad_s=rec[:, _REC_SHAFT_V].copy(),
                           setpoint_rad=rec[:, _REC_SET].copy(), table_velocity_rad_s=rec[:, _REC_TABLE_V].copy(),
                           setpoint_velocity_rad_s=rec[:, _REC_SET_V].copy())
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class DynamicsDiagnostics:
+    """What the servo and the table did in a dynamic scan, for sidecars and study rows.
+
+    Attributes:
+      physics_steps: steps taken.
+      simulated_time_s: rig time simulated, s.
+      max_tracking_error_rad: largest |shaft - setpoint|.
+      max_table_tracking_error_rad: largest |table - setpoint| (includes the play).
+      max_table_minus_shaft_rad: largest |table - shaft| (0 without backlash).
+      max_table_velocity_error_rad_s: largest |table velocity - profile velocity|
+        (NaN when the trajectory has no table velocity).
+      cruise_table_speed_p2p_rad_s: peak-to-peak table speed while the profile
+        cruises, including the transient after the ramp (continuous scans; NaN
+        when it never cruises).
+      n_moves: rests of the profile (step moves that ended).
+      n_unsettled: rests in which the shaft never came within the tolerance to
+        stay.
+      settle_time_max_s, settle_time_median_s: time from the end of each move's
+        profile until the shaft (what the servo's Moving flag judges; the table
+        may lie anywhere in the play) is within ``settle_tolerance_rad`` of the
+        goal for the rest of the rest (NaN when there are no settled moves).
+      max_believed_minus_true_rad: largest |believed - true| per-beam angle, when
+        given (else NaN).
+    """
+
+    physics_steps: int
+    simulated_time_s: float
+    max_tracking_error_rad: float
+    max_table_tracking_error_rad: float
+    max_table_minus_shaft_rad: float
+    max_table_velocity_error_rad_s: float
+    cruise_table_speed_p2p_rad_s: float
+    n_moves: int
+    n_unsettled: int
+    settle_time_max_s: float
+    settle_time_median_s: float
+    max_believed_minus_true_rad: float = math.nan
+
+    @classmethod
+    def from_trajectory(cls, trajectory: Trajectory, *, settle_tolerance_rad: float = 2 * units.RAD_PER_TICK,
+                        true_rad: np.ndarray | None = None,
+                        believed_rad: np.ndarray | None = None) -> "DynamicsDiagnostics":
+        """Computes the diagnostics of a recorded trajectory (pure; no MuJoCo).
+
+        Args:
+          trajectory: from :meth:`TurntableSim.trajectory`.
+          settle_tolerance_rad: how close to the goal counts as settled, radians.
+          true_rad, believed_rad: optional same-shaped per-beam angles (true, and
+            as reconstructed), radians.
+        """
+        tr = trajectory
+        t = np.asarray(tr.time_s)
+        table, shaft, setp = np.asarray(tr.table_rad), np.asarray(tr.shaft_rad), np.asarray(tr.setpoint_rad)
+        if tr.table_velocity_rad_s is not None and tr.setpoint_velocity_rad_s is not None:
+            vel_err = np.abs(np.asarray(tr.table_velocity_rad_s) - np.asarray(tr.setpoint_velocity_rad_s))
+            max_vel_err = float(vel_err.max())
+            sv = np.asarray(tr.setpoint_velocity_rad_s)
+            cruise = (sv != 0) & (np.abs(np.diff(sv, prepend=sv[0])) < 1e-12)
+            p2p = (float(np.ptp(np.asarray(tr.table_velocity_rad_s)[cruise])) if cruise.sum() > 1 else math.nan)
+        else:
+            max_vel_err, p2p = math.nan, math.nan
+        # Rests: runs of a constant setpoint (profile finished).
+        rest = np.concatenate([[False], np.diff(setp) == 0])
+        settle, unsettled = [], 0
+        if rest.any():
+            edges = np.diff(rest.astype(np.int8), prepend=0, append=0)
+            starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+            for a, b in zip(starts, ends):
+                a0 = a - 1  # the step where the profile reached its goal
+                if b - a0 < 2 or a0 <= 0:
+                    continue
+                outside = np.abs(shaft[a0:b] - setp[a0:b]) > settle_tolerance_rad
+                if outside[-1]:
+                    unsettled += 1
+                    continue
+                last_out = np.flatnonzero(outside)
+                k = a0 + (int(last_out[-1]) + 1 if last_out.size else 0)
+                settle.append(float(t[k] - t[a0]))
+        if true_rad is not None and believed_rad is not None:
+            from plantsim.evaluation.angle_error import max_believed_minus_true_rad
+            believed = max_believed_minus_true_rad(true_rad, believed_rad)
+        else:
+            believed = math.nan
+        return cls(physics_steps=int(len(t) - 1), simulated_time_s=float(t[-1]),
+                   max_tracking_error_rad=float(np.max(np.abs(shaft - setp))),
+                   max_table_tracking_error_rad=float(np.max(np.abs(table - setp))),
+                   max_table_minus_shaft_rad=float(np.max(np.abs(table - shaft))),
+                   max_table_velocity_error_rad_s=max_vel_err, cruise_table_speed_p2p_rad_s=p2p,
+                   n_moves=len(settle) + unsettled, n_unsettled=unsettled,
+                   settle_time_max_s=max(settle) if settle else math.nan,
+                   settle_time_median_s=float(np.median(settle)) if settle else math.nan,
+                   max_believed_minus_true_rad=believed)
+
+    def to_dict(self) -> dict:
+        """JSON-able dict (NaN becomes None)."""
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in dataclasses.asdict(self).items()}
