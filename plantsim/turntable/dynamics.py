@@ -370,6 +370,20 @@ def check_stability(dscene: DynamicScene) -> None:
             f"{inertia:.4g} kg m^2 rings at {omega:.4g} rad/s, and omega * timestep = "
             f"{omega * dt:.3g} exceeds {limit} for the {d.integrator} integrator; use "
             f"timestep_s <= {limit / omega:.3g} or lower the position P gain")
+    # PI(D) loop on inertia I and damping c: I s^3 + (c + kd) s^2 + kp s + ki is
+    # stable only while ki < (c + kd) kp / I (Routh-Hurwitz). "Position I Gain" =
+    # 16383 broke this and swung the table by 6.3 rad/s while the position error
+    # stayed under the tracking guard.
+    c_total = d.servo.damping + d.servo.back_emf_damping + g["kd"]
+    ki_max = c_total * g["kp"] / inertia
+    if g["ki"] > 0 and g["ki"] >= ki_max:
+        safe_si = 0.5 * ki_max / d.servo.stall_torque
+        register = int(safe_si / units.SI_PER_KI * units.I_GAIN_DIVISOR)
+        raise SimulationError(
+            f"the position loop is unstable: ki = {g['ki']:.4g} N m/(rad s) is above the Routh-Hurwitz "
+            f"limit (c + kd) kp / I = {ki_max:.4g} for kp = {g['kp']:.4g} N m/rad, c + kd = {c_total:.4g} "
+            f"N m s/rad on {inertia:.4g} kg m^2, so the table would oscillate with growing amplitude; "
+            f"use position_i_gain <= {safe_si:.4g} (\"Position I Gain\" <= {register}), or raise the D gain")
     # Explicitly integrated damping: the pid's kd under Euler, everything under RK4.
     explicit_c = {"euler": g["kd"], "implicitfast": 0.0,
                   "rk4": g["kd"] + d.servo.damping + d.servo.back_emf_damping}[d.integrator]
@@ -459,6 +473,9 @@ class TurntableSim:
         self._last_sign = 0
         dyn = dscene.dynamics
         self._half_play = math.radians(dyn.jitter.backlash_deg) / 2
+        c_total = dyn.servo.damping + dyn.servo.back_emf_damping + self._gains["kd"]
+        ki_max = c_total * self._gains["kp"] / driven_inertia(dscene)
+        self._i_register_safe = int(0.5 * ki_max / dyn.servo.stall_torque / units.SI_PER_KI * units.I_GAIN_DIVISOR)
         self._ripple_periods = (int(round(dyn.servo.gear_ratio * dyn.jitter.ripple_periods_per_motor_rev))
                                 if dyn.jitter.ripple_torque_nm > 0 else 0)
 
@@ -616,8 +633,10 @@ class TurntableSim:
             if na >= 0:
                 ctrl[:, na] = self._noise(t)
             mujoco.mj_getState(m, d, self._state, self._spec)
+            # The solver's warm start carries over, so chunking changes nothing.
             states, _ = rollout.rollout(m, d, self._state[None], ctrl[None],
-                                        control_spec=int(mujoco.mjtState.mjSTATE_CTRL))
+                                        control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
+                                        initial_warmstart=d.qacc_warmstart.copy()[None])
             states = states[0]
             mujoco.mj_setState(m, d, states[-1], self._spec)
             d.ctrl[:] = ctrl[-1]
@@ -689,8 +708,8 @@ class TurntableSim:
             bad.append((i, f"the turntable oscillates: its velocity swung beyond +-{dyn.max_velocity_error_rad_s:g} "
                            f"rad/s about the profile's {OSCILLATION_SWINGS} times within "
                            f"oscillation_window_s ({dyn.oscillation_window_s:g} s), by t = {rec[i, _REC_T]:.6g} s: "
-                           f"the position loop is unstable; lower the position I gain (or P gain), add D gain, "
-                           f"or {fix_dt}"))
+                           f"the position loop is unstable; use \"Position I Gain\" <= {self._i_register_safe} "
+                           f"(half the Routh-Hurwitz limit for this load), add D gain, or {fix_dt}"))
         speed = float(np.max(np.abs(rec[:, _REC_SHAFT_V])))
         why = self._resolution_fix(speed, 2.0)
         if why:
