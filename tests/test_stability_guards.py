@@ -221,3 +221,21 @@ def test_diagnostics_of_a_known_trajectory():
     assert d.max_believed_minus_true_rad == pytest.approx(0.002)
     out = d.to_dict()
     assert out["max_table_velocity_error_rad_s"] is None and out["physics_steps"] == 10
+
+
+# --- F1: stiction holds the shaft at the edge of the P loop's dead band ---------------------------
+
+
+def test_f1_dry_friction_holds_the_shaft_at_the_dead_band_edge():
+    weak = dataclasses.replace(DEFAULT_SERVO, position_p_gain=DEFAULT_SERVO.position_p_gain / 20)
+    sim = sim_for(TurntableDynamics(servo=weak))
+    goal = 0.1
+    sim.command(goal)
+    sim.advance(8000)  # the overdamped weak loop reaches the edge in a few seconds
+    stuck = sim.shaft_rad
+    sim.advance(6000)
+    # A torque below the friction cannot move it: kp * error = frictionloss at the edge
+    # (MuJoCo's default soft friction crept on, 1.5 ticks past the edge in 8 s).
+    edge = weak.frictionloss / (weak.position_p_gain * weak.stall_torque)
+    assert abs(sim.shaft_rad - stuck) < 0.05 * units.RAD_PER_TICK
+    assert goal - sim.shaft_rad == pytest.approx(edge, rel=0.01)

@@ -276,6 +276,13 @@ def add_servo(spec: mujoco.MjSpec, dynamics: TurntableDynamics) -> None:
     else:
         servo_joint = table_joint
     servo_joint.armature = servo.armature
+    # Stiction: the dry friction's constraint as stiff as the integrator allows,
+    # so a torque below the friction holds the shaft (MuJoCo's default soft
+    # friction let it creep through the P loop's dead band: 29 -> 19 ticks in 8 s
+    # where the dead band ends at 20.7).
+    for joint in {servo_joint.name: servo_joint, table_joint.name: table_joint}.values():
+        joint.solref_friction = [2 * dynamics.timestep_s, 1.0]
+        joint.solimp_friction = [0.99, 0.999, 1e-6, 0.5, 2.0]
     servo_joint.damping = [servo.damping + servo.back_emf_damping, 0.0, 0.0]  # linear term only
     servo_joint.frictionloss = servo.frictionloss
 
