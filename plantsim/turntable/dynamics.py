@@ -265,7 +265,7 @@ def add_servo(spec: mujoco.MjSpec, dynamics: TurntableDynamics) -> None:
         # A stiff stop: the fastest the integrator resolves (time constant of two
         # timesteps, critically damped) and full impedance from the first
         # micro-radian of penetration, so the play holds down to small plays
-        # (the default soft limit let a 1-degree play open to 1.44 degrees).
+        # (the default soft limit let the table get 0.72 deg from the shaft in a 1-degree play).
         tendon.solref_limit = [2 * dynamics.timestep_s, 1.0]
         tendon.solimp_limit = [0.99, 0.999, 1e-6, 0.5, 2.0]
         tendon.wrap_joint("turntable", 1.0)
