@@ -22,10 +22,15 @@ The encoder and the PID sit on the servo output shaft; backlash lies between it
 and the table, so the encoder does not see it (as with a table driven through a
 gear or coupling). Without backlash the servo output is the table hinge.
 
-:class:`TurntableSim` steps the physics with fixed timesteps, feeds the profile
-as the setpoint, records the true angles at every step, and stops with
-:class:`~plantsim.errors.SimulationError` (cause and fix named) when the
-simulation is unstable or the servo cannot follow.
+:class:`TurntableSim` steps the physics with fixed timesteps in chunks inside
+MuJoCo (``mujoco.rollout`` with the profile as the control sequence), records
+the true angles at every step, and stops with
+:class:`~plantsim.errors.SimulationError` (cause, step time and fix named) when
+the settings cannot be simulated (checked before stepping) or any step of the
+run goes wrong: the shaft or the table cannot follow, the table leaves the
+gear's play, the table oscillates, the ripple is not resolved.
+:class:`DynamicsDiagnostics` summarises a trajectory for sidecars and studies.
+See docs/turntable-dynamics.md.
 """
 
 from __future__ import annotations
