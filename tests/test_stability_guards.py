@@ -177,7 +177,7 @@ def test_chunked_physics_equals_one_mj_step_per_control_row():
                                                 backlash_deg=0.2))
     ds = build_dynamic_scene(RigGeometry(), None, dyn)
     a = TurntableSim(ds, np.random.default_rng(3), chunk_steps=1000)
-    b = TurntableSim(ds, np.random.default_rng(3), chunk_steps=7)
+    b = TurntableSim(ds, np.random.default_rng(3), chunk_steps=150)  # rollout and per-step chunks mixed
     for sim in (a, b):
         sim.command(0.3)
         sim.advance(700)

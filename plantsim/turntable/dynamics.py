@@ -438,6 +438,9 @@ class Trajectory:
         return np.interp(t_s, self.time_s, self.table_rad)
 
 
+# Chunks shorter than this step one mj_step at a time (rollout's call costs ~1 ms).
+_ROLLOUT_MIN_STEPS = 100
+
 _REC_T, _REC_TABLE, _REC_SHAFT, _REC_SHAFT_V, _REC_SET, _REC_TABLE_V, _REC_SET_V = range(7)
 
 
@@ -644,19 +647,30 @@ class TurntableSim:
             ctrl[:, ca + 2] = g["kff_vel"] * v_ref + g["kff_acc"] * a_ref
             if na >= 0:
                 ctrl[:, na] = self._noise(t)
-            mujoco.mj_getState(m, d, self._state, self._spec)
-            # The solver's warm start carries over, so chunking changes nothing.
-            states, _ = rollout.rollout(m, d, self._state[None], ctrl[None],
-                                        control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
-                                        initial_warmstart=d.qacc_warmstart.copy()[None])
-            states = states[0]
-            mujoco.mj_setState(m, d, states[-1], self._spec)
-            d.ctrl[:] = ctrl[-1]
             rec = np.empty((n, 7))
-            rec[:, _REC_TABLE] = states[:, q0 + tq]
-            rec[:, _REC_SHAFT] = states[:, q0 + qa]
-            rec[:, _REC_SHAFT_V] = states[:, v0 + va]
-            rec[:, _REC_TABLE_V] = states[:, v0 + tv]
+            if n < _ROLLOUT_MIN_STEPS:
+                # A few steps (a step scan's settling checks): the rollout call's
+                # fixed cost (~1 ms) would dominate; the same steps one by one.
+                for i in range(n):
+                    d.ctrl[:] = ctrl[i]
+                    mujoco.mj_step(m, d)
+                    rec[i, _REC_TABLE] = d.qpos[tq]
+                    rec[i, _REC_SHAFT] = d.qpos[qa]
+                    rec[i, _REC_SHAFT_V] = d.qvel[va]
+                    rec[i, _REC_TABLE_V] = d.qvel[tv]
+            else:
+                mujoco.mj_getState(m, d, self._state, self._spec)
+                # The solver's warm start carries over, so chunking changes nothing.
+                states, _ = rollout.rollout(m, d, self._state[None], ctrl[None],
+                                            control_spec=int(mujoco.mjtState.mjSTATE_CTRL),
+                                            initial_warmstart=d.qacc_warmstart.copy()[None])
+                states = states[0]
+                mujoco.mj_setState(m, d, states[-1], self._spec)
+                d.ctrl[:] = ctrl[-1]
+                rec[:, _REC_TABLE] = states[:, q0 + tq]
+                rec[:, _REC_SHAFT] = states[:, q0 + qa]
+                rec[:, _REC_SHAFT_V] = states[:, v0 + va]
+                rec[:, _REC_TABLE_V] = states[:, v0 + tv]
             self.steps += n
             rec[:, _REC_T] = (self.steps - n + 1 + np.arange(n)) * self.dt
             p_after, v_after, _ = self.profile.sample(rec[:, _REC_T])
