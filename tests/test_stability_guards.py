@@ -239,3 +239,21 @@ def test_f1_dry_friction_holds_the_shaft_at_the_dead_band_edge():
     edge = weak.frictionloss / (weak.position_p_gain * weak.stall_torque)
     assert abs(sim.shaft_rad - stuck) < 0.05 * units.RAD_PER_TICK
     assert goal - sim.shaft_rad == pytest.approx(edge, rel=0.01)
+
+
+def test_f1_the_controller_can_act_on_whole_encoder_ticks():
+    servo = dataclasses.replace(DEFAULT_SERVO, frictionloss=0.0)
+    goal = 0.3 * units.RAD_PER_TICK
+    finals = {}
+    for ticks in (None, 4096):
+        sim = sim_for(TurntableDynamics(servo=servo, controller_ticks_per_rev=ticks))
+        sim.command(goal)
+        sim.advance(1500)
+        finals[ticks] = sim.trajectory().shaft_rad[-500:]
+    # On the exact angle a sub-tick step settles exactly; on whole ticks it cannot:
+    # the loop sees 0 ticks until the shaft crosses half a tick, then -1.
+    assert np.abs(finals[None] - goal).max() < 0.01 * units.RAD_PER_TICK
+    assert np.abs(finals[4096] - goal).mean() > 0.1 * units.RAD_PER_TICK
+    assert np.abs(finals[4096]).max() < 1.0 * units.RAD_PER_TICK
+    with pytest.raises(ValueError, match="controller_ticks_per_rev must be an integer >= 2"):
+        TurntableDynamics(controller_ticks_per_rev=1)

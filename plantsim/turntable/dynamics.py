@@ -169,6 +169,11 @@ class TurntableDynamics:
       max_physics_steps: a run stops before taking more physics steps than
         this (a timestep far too small for the scan would otherwise run for
         hours and fill the memory with its record).
+      controller_ticks_per_rev: the position loop acts on whole encoder ticks
+        of this resolution, as the firmware does (4096 for the XM430; sub-tick
+        moves then do not settle exactly); None = on the exact angle. Steps
+        one ``mj_step`` at a time (the control depends on every step's angle),
+        so a long run is ~1.5x slower.
     """
 
     servo: ServoConfig = DEFAULT_SERVO
@@ -184,6 +189,7 @@ class TurntableDynamics:
     max_velocity_error_rad_s: float = 0.5
     oscillation_window_s: float = 1.0
     max_physics_steps: int = 4_000_000
+    controller_ticks_per_rev: int | None = None
 
     def __post_init__(self):
         if not isinstance(self.servo, ServoConfig):
@@ -202,6 +208,9 @@ class TurntableDynamics:
                 f"timestep_s must be at least {MIN_TIMESTEP_S:g} s, got {self.timestep_s:g}: a 1-rpm "
                 f"turn would take {60 / self.timestep_s:.3g} physics steps; the default "
                 f"{DEFAULT_TIMESTEP_S:g} s resolves the servo (see docs/turntable-dynamics.md)")
+        t = self.controller_ticks_per_rev
+        if t is not None and (isinstance(t, bool) or not isinstance(t, int) or t < 2):
+            raise ValueError(f"controller_ticks_per_rev must be an integer >= 2 or None (exact), got {t!r}")
         p = self.max_physics_steps
         if isinstance(p, bool) or not isinstance(p, int) or p < 1:
             raise ValueError(f"max_physics_steps must be a positive integer, got {p!r}")
@@ -636,6 +645,7 @@ class TurntableSim:
         tv = ds.table_dof_adr
         ca, na = ds.servo_ctrl_adr, ds.noise_ctrl_adr
         q0, v0 = self._qpos0, self._qvel0
+        tick = 2 * math.pi / dyn.controller_ticks_per_rev if dyn.controller_ticks_per_rev else 0.0
         done = 0
         while done < n_steps:
             n = min(self.chunk_steps, n_steps - done)
@@ -648,7 +658,19 @@ class TurntableSim:
             if na >= 0:
                 ctrl[:, na] = self._noise(t)
             rec = np.empty((n, 7))
-            if n < _ROLLOUT_MIN_STEPS:
+            if tick:
+                # The pid sees kp (ctrl_pos - q): feeding p_ref + (q - q_tick) makes it
+                # act on the whole-tick angle q_tick (the integral likewise).
+                for i in range(n):
+                    d.ctrl[:] = ctrl[i]
+                    q = d.qpos[qa]
+                    d.ctrl[ca] += q - math.floor(q / tick + 0.5) * tick
+                    mujoco.mj_step(m, d)
+                    rec[i, _REC_TABLE] = d.qpos[tq]
+                    rec[i, _REC_SHAFT] = d.qpos[qa]
+                    rec[i, _REC_SHAFT_V] = d.qvel[va]
+                    rec[i, _REC_TABLE_V] = d.qvel[tv]
+            elif n < _ROLLOUT_MIN_STEPS:
                 # A few steps (a step scan's settling checks): the rollout call's
                 # fixed cost (~1 ms) would dominate; the same steps one by one.
                 for i in range(n):
