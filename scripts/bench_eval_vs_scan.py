@@ -45,6 +45,8 @@ def main() -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=float, nargs="+", default=[1.0, 0.25], help="degrees")
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--no-realistic", action="store_true",
+                        help="skip the realistic-sensor runs (run_one, as plantsim study)")
     args = parser.parse_args()
 
     plant = load_plant(MAIZE)
@@ -83,6 +85,26 @@ def main() -> None:
         print(f"{step:8g} {len(pts):8,} {t_scan:8.3f} {times['igl']:11.3f} {times['grid']:12.3f} "
               f"{mtimes['igl']:14.3f} {mtimes['grid']:15.3f} {times['igl'] / t_scan:14.2f} "
               f"{mtimes['igl'] / t_scan:17.2f} {diff:23.2e}")
+    if not args.no_realistic:
+        realistic(args.steps, args.runs)
+
+
+def realistic(steps, runs) -> None:
+    """As plantsim study runs them: a realistic scan (its phases) and --evaluate's evaluation."""
+    from plantsim.evaluation.study import Sweep, run_one
+
+    print("\nrealistic sensor, as plantsim study / scan --evaluate run them (libigl backend)")
+    print(f"{'step deg':>8} {'scan phases s':>14} {'evaluation s':>13} {'eval/scan':>10}")
+    for step in steps:
+        sweep = Sweep(plants=("maize",), grid=(("step_deg", (step,)),))
+        run = sweep.runs()[0]
+        rows = [run_one(run, sweep.config_data(run), sweep.evaluation) for _ in range(runs)]
+        if rows[0].get("error"):
+            print(f"{step:8g} failed: {rows[0]['error']}")
+            continue
+        scan_s = statistics.median(r["wall_time_s"] for r in rows)
+        eval_s = statistics.median(r["evaluate_time_s"] for r in rows)
+        print(f"{step:8g} {scan_s:14.3f} {eval_s:13.3f} {eval_s / scan_s:10.2f}")
 
 
 if __name__ == "__main__":
