@@ -214,6 +214,9 @@ def run_emulator(args: argparse.Namespace) -> int:
 
 
 def run_rig_ping(args: argparse.Namespace) -> int:
+    from plantsim.validation import require_extra
+
+    require_extra("dynamixel_sdk", "rig", "plantsim rig ping")  # one line, not a traceback
     from plantsim.hardware.dynamixel.driver import DynamixelTurntable
     from plantsim.errors import HardwareError
 

@@ -1,4 +1,18 @@
-"""Point-cloud files: LAS 1.4, PLY, PCD and TXT/XYZ, chosen by extension.
+"""Point-cloud files: LAS/LAZ 1.4, PLY, PCD and TXT/XYZ, chosen by extension.
+
+Each writer is checked against the readers people use (tests/test_interop.py):
+LAS 1.4 sets the global-encoding WKT bit (PDAL <= 2.7.1 refuses files without it)
+and return number / number of returns 1/1 (the spec requires 1..15), with the
+scan line as point source id; ``.laz`` is the same, compressed by ``lazrs``
+(the ``laz`` extra). PLY has float32 x y z by default (PCL's ``PointXYZ`` reads
+doubles as zeros; pass ``xyz_double=True`` for float64), float ``intensity`` and
+the other fields named ``scalar_<name>`` so CloudCompare loads them as scalar
+fields (Open3D's tensor reader keeps every property). PCD has float32 x y z and
+intensity (PCL's ``PointXYZI``) and a uint32 ``label`` holding the class code
+(``PointXYZL``). TXT starts with a ``//X Y Z ...`` line that CloudCompare takes
+as column names (``SF_`` ones as scalar fields, never colours); XYZ is the same
+columns without a header (Open3D reads x y z from it); PTS is a point count and
+``x y z intensity`` (Open3D and CloudCompare read both).
 
 Exporters take a :class:`PointCloud` and return bytes (they never touch the
 disk); :func:`write_cloud` is the only writer and writes atomically (a temp
@@ -35,9 +49,10 @@ _CLASS_OF_CODE = {code: cls for cls, code in CLASSIFICATION.items()}
 LAS_SCALE_M = 1e-5
 
 # Name, numpy dtype, PCD type/size letter: the scalar fields after x, y, z.
+# Intensity is received power in [0, 1] as float32 (PCL's PointXYZI field).
 _FIELDS = (
     ("classification", np.uint8, "U"),
-    ("intensity", np.uint16, "U"),
+    ("intensity", np.float32, "F"),
     ("beam_index", np.uint16, "U"),
     ("scan_index", np.uint32, "U"),
     ("turntable_angle_rad", np.float64, "F"),
@@ -50,8 +65,8 @@ def _columns(cloud: PointCloud) -> dict[str, np.ndarray]:
     codes = np.zeros(256, dtype=np.uint8)
     for cls, code in CLASSIFICATION.items():
         codes[int(cls)] = code
-    intensity = (np.zeros(len(cloud), np.uint16) if cloud.intensity is None
-                 else np.round(np.clip(cloud.intensity, 0.0, 1.0) * 65535).astype(np.uint16))
+    intensity = (np.zeros(len(cloud), np.float32) if cloud.intensity is None
+                 else np.clip(cloud.intensity, 0.0, 1.0).astype(np.float32))
     return {
         "classification": codes[cloud.hit_class],
         "intensity": intensity,
@@ -67,7 +82,7 @@ def _cloud_from_columns(xyz: np.ndarray, cols: dict[str, np.ndarray]) -> PointCl
     classification = np.asarray(cols["classification"], dtype=np.int64)
     hit_class = np.array([_CLASS_OF_CODE.get(int(c), HitClass.NONE) for c in range(256)],
                          dtype=np.uint8)[classification]
-    intensity = np.asarray(cols["intensity"], dtype=np.float64)
+    intensity = np.asarray(cols["intensity"], dtype=np.float32)
     return PointCloud(
         points_turntable=np.ascontiguousarray(xyz, dtype=np.float64),
         hit_class=hit_class,
@@ -76,7 +91,7 @@ def _cloud_from_columns(xyz: np.ndarray, cols: dict[str, np.ndarray]) -> PointCl
         turntable_angle_rad=np.asarray(cols["turntable_angle_rad"], dtype=np.float64),
         range_m=np.asarray(cols["range_m"], dtype=np.float64),
         time_s=np.asarray(cols["time"], dtype=np.float64),
-        intensity=(intensity / 65535).astype(np.float32) if intensity.any() else None,
+        intensity=intensity if intensity.any() else None,
     )
 
 
@@ -88,15 +103,13 @@ _LAS_EXTRA = (("beam_index", np.uint16, "beam within its scan line"),
               ("range_m", np.float64, "measured range, metres"))
 
 
-def to_las(cloud: PointCloud) -> bytes:
-    """LAS 1.4, point format 6; GPS time is the beam's time (s since the scan's start).
-
-    Raises:
-      OverflowError: a coordinate does not fit the 0.01 mm grid (laspy's own check).
-    """
+def _las_data(cloud: PointCloud):
     import laspy
 
     header = laspy.LasHeader(point_format=6, version="1.4")
+    # LAS 1.4 R15 2.4: point formats 6-10 require the WKT bit (bit 4) of the
+    # global encoding; PDAL <= 2.7.1 refuses files without it.
+    header.global_encoding.wkt = True
     header.scales = np.full(3, LAS_SCALE_M)
     xyz = cloud.points_turntable
     header.offsets = np.floor(xyz.min(axis=0)) if len(xyz) else np.zeros(3)
@@ -107,25 +120,71 @@ def to_las(cloud: PointCloud) -> bytes:
     las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     cols = _columns(cloud)
     las.classification = cols["classification"]
-    las.intensity = cols["intensity"]
+    las.intensity = np.round(cols["intensity"].astype(np.float64) * 65535).astype(np.uint16)
     las.gps_time = cols["time"]
+    # One return per pulse: the simulated and the real URG-04LX report the
+    # first echo only (LAS 1.4 R15 table 7 requires 1..15, never 0).
+    las.return_number = np.ones(len(cloud), np.uint8)
+    las.number_of_returns = np.ones(len(cloud), np.uint8)
+    # Point source id: the scan line (turntable step) when it fits 16 bits.
+    if len(cloud) and int(cloud.scan_index.max()) <= 0xFFFF:
+        las.point_source_id = cloud.scan_index.astype(np.uint16)
     for name, _, _ in _LAS_EXTRA:
         las[name] = cols[name]
+    return las
+
+
+def to_las(cloud: PointCloud) -> bytes:
+    """LAS 1.4, point format 6; GPS time is the beam's time (s since the scan's start).
+
+    Intensity is scaled to 0..65535; return number and number of returns are
+    1; point source id is the scan line index (when it fits 16 bits). The scan
+    angle is left 0: the cloud does not carry the beam's angle in the sensor.
+
+    Raises:
+      OverflowError: a coordinate does not fit the 0.01 mm grid (laspy's own check).
+    """
     buffer = io.BytesIO()
-    las.write(buffer)
+    _las_data(cloud).write(buffer)
+    return buffer.getvalue()
+
+
+def _laz_backend():
+    import laspy
+
+    try:
+        import lazrs  # noqa: F401
+    except ImportError:
+        raise RuntimeError("writing or reading .laz needs lazrs: pip install 'plantsim[laz]'"
+                           ) from None
+    return laspy.LazBackend.Lazrs
+
+
+def to_laz(cloud: PointCloud) -> bytes:
+    """LAZ: the LAS 1.4 of :func:`to_las`, compressed losslessly by ``lazrs``.
+
+    Raises:
+      RuntimeError: lazrs is not installed (names the extra).
+    """
+    backend = _laz_backend()
+    buffer = io.BytesIO()
+    _las_data(cloud).write(buffer, do_compress=True, laz_backend=backend)
     return buffer.getvalue()
 
 
 def from_las(data: bytes) -> PointCloud:
+    """Reads LAS or LAZ (any point format with x y z; plantsim's extra bytes if present)."""
     import laspy
 
+    if data[:4] == b"LASF" and len(data) > 104 and data[104] & 0x80:  # compressed bit
+        _laz_backend()
     las = laspy.read(io.BytesIO(data))
     xyz = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1)
     names = set(las.point_format.dimension_names)
     n = len(xyz)
     cols = {
         "classification": np.asarray(las.classification),
-        "intensity": np.asarray(las.intensity),
+        "intensity": np.asarray(las.intensity, dtype=np.float64) / 65535,
         "time": np.asarray(las.gps_time) if "gps_time" in names else np.zeros(n),
     }
     for name, dtype, _ in _LAS_EXTRA:
@@ -135,29 +194,44 @@ def from_las(data: bytes) -> PointCloud:
 
 # --- PLY (binary little endian) --------------------------------------------
 
-_PLY_TYPES = {np.uint8: "uchar", np.uint16: "ushort", np.uint32: "uint", np.float64: "double"}
+_PLY_TYPES = {np.uint8: "uchar", np.int32: "int", np.uint16: "ushort", np.uint32: "uint", np.float32: "float",
+              np.float64: "double"}
+# CloudCompare loads PLY vertex properties named ``scalar_*`` as scalar fields
+# without asking; ``intensity`` it knows by name.
+_PLY_PREFIX = "scalar_"
 
 
-def _structured(cloud: PointCloud, xyz_dtype) -> np.ndarray:
+def _structured(cloud: PointCloud, xyz_dtype, rename: dict[str, str] | None = None,
+                types: dict[str, type] | None = None) -> np.ndarray:
+    rename, types = rename or {}, types or {}
+    fields = [(name, types.get(name, t)) for name, t, _ in _FIELDS]
     dtype = [("x", xyz_dtype), ("y", xyz_dtype), ("z", xyz_dtype)] + [
-        (name, t) for name, t, _ in _FIELDS]
+        (rename.get(name, name), t) for name, t in fields]
     rows = np.empty(len(cloud), dtype=np.dtype(dtype).newbyteorder("<"))
     for i, axis in enumerate("xyz"):
         rows[axis] = cloud.points_turntable[:, i]
     for name, values in _columns(cloud).items():
-        rows[name] = values
+        rows[rename.get(name, name)] = values
     return rows
 
 
-def to_ply(cloud: PointCloud) -> bytes:
-    """Binary PLY with double-precision coordinates and the scalar fields."""
-    props = "".join(f"property {_PLY_TYPES[t]} {name}\n"
-                    for name, t in [("x", np.float64), ("y", np.float64), ("z", np.float64)]
-                    + [(n, t) for n, t, _ in _FIELDS])
+def to_ply(cloud: PointCloud, *, xyz_double: bool = False) -> bytes:
+    """Binary little-endian PLY.
+
+    Args:
+      cloud: the points.
+      xyz_double: float64 coordinates (default float32: 0.06 um at 1 m, and
+        what PCL's ``PointXYZ`` and most viewers read).
+    """
+    rename = {name: _PLY_PREFIX + name for name, _, _ in _FIELDS if name != "intensity"}
+    # Open3D's tensor reader skips ushort/uint properties: the indices are int32.
+    rows = _structured(cloud, np.float64 if xyz_double else np.float32, rename,
+                       types={"beam_index": np.int32, "scan_index": np.int32})
+    props = "".join(f"property {_PLY_TYPES[rows.dtype[n].type]} {n}\n" for n in rows.dtype.names)
     header = ("ply\nformat binary_little_endian 1.0\ncomment plantsim point cloud, turntable "
-              "frame, metres\ncomment classification: 4 plant, 64 turntable, 65 rig\n"
+              "frame, metres\ncomment scalar_classification: 4 plant, 64 turntable, 65 rig\n"
               f"element vertex {len(cloud)}\n{props}end_header\n")
-    return header.encode("ascii") + _structured(cloud, np.float64).tobytes()
+    return header.encode("ascii") + rows.tobytes()
 
 
 _PLY_NP = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4",
@@ -182,7 +256,9 @@ def from_ply(data: bytes) -> PointCloud:
             if in_vertex:
                 n = int(parts[2])
         elif parts[:1] == ["property"] and in_vertex:
-            fields.append((parts[2], _PLY_NP[parts[1]]))
+            name = parts[2]
+            fields.append((name[len(_PLY_PREFIX):] if name.startswith(_PLY_PREFIX) else name,
+                           _PLY_NP[parts[1]]))
     rows = np.frombuffer(data, dtype=np.dtype(fields), count=n, offset=end + len(b"end_header\n"))
     return _from_rows(rows)
 
@@ -190,15 +266,24 @@ def from_ply(data: bytes) -> PointCloud:
 def _from_rows(rows: np.ndarray) -> PointCloud:
     xyz = np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
     names = rows.dtype.names
-    cols = {name: (rows[name] if name in names else np.zeros(len(rows), t)) for name, t, _ in _FIELDS}
+    aliases = {"classification": ("classification", "label")}
+    cols = {}
+    for name, t, _ in _FIELDS:
+        found = [a for a in aliases.get(name, (name,)) if a in names]
+        cols[name] = rows[found[0]] if found else np.zeros(len(rows), t)
     return _cloud_from_columns(xyz, cols)
 
 
 # --- PCD v0.7 (binary) -----------------------------------------------------
 
 def to_pcd(cloud: PointCloud) -> bytes:
-    """Binary PCD v0.7. Coordinates are float32 (PCL's PointXYZ; 0.06 um at 1 m)."""
-    rows = _structured(cloud, np.float32)
+    """Binary PCD v0.7 for PCL.
+
+    x y z and intensity are float32 (``PointXYZI``); the class code (4 plant,
+    64 turntable, 65 rig) is a uint32 ``label`` (``PointXYZL``/``PointXYZRGBL``).
+    """
+    rows = _structured(cloud, np.float32, rename={"classification": "label"},
+                       types={"classification": np.uint32})
     names = rows.dtype.names
     sizes = " ".join(str(rows.dtype[n].itemsize) for n in names)
     types = " ".join("F" if rows.dtype[n].kind == "f" else "U" for n in names)
@@ -240,21 +325,68 @@ def from_pcd(data: bytes) -> PointCloud:
 # --- TXT / XYZ (ASCII columns, CloudCompare-style header) ------------------
 
 def to_txt(cloud: PointCloud) -> bytes:
-    """ASCII columns: x y z (nanometre resolution) and the scalar fields."""
+    """ASCII columns: x y z (nanometre resolution) and the scalar fields.
+
+    The first line, ``//X Y Z Intensity SF_classification ...``, names the
+    columns for CloudCompare (``SF`` names are scalar fields, never colours);
+    Open3D's ``xyz`` reader skips it and reads x y z from every other line.
+    """
     cols = _columns(cloud)
-    header = "//x y z " + " ".join(cols) + "\n"
+    names = ["X", "Y", "Z"] + ["Intensity" if n == "intensity" else f"SF_{n}" for n in cols]
     table = np.column_stack([cloud.points_turntable] + [cols[n].astype(np.float64) for n in cols])
-    fmt = ["%.9f"] * 3 + ["%d"] * 4 + ["%.12g"] * 3
+    fmt = ["%.9f"] * 3 + ["%d", "%.9g", "%d", "%d"] + ["%.12g"] * 3
     buffer = io.BytesIO()
-    buffer.write(header.encode("ascii"))
+    buffer.write(("//" + " ".join(names) + "\n").encode("ascii"))
     np.savetxt(buffer, table, fmt=fmt, delimiter=" ")
     return buffer.getvalue()
 
 
+def to_xyz(cloud: PointCloud) -> bytes:
+    """ASCII columns without a header, in the order of :func:`to_txt`'s header.
+
+    Open3D's ``xyz`` reader (which stops at a header line) reads x y z from
+    the first three columns.
+    """
+    text = to_txt(cloud)
+    return text[text.index(b"\n") + 1:]
+
+
+def to_pts(cloud: PointCloud) -> bytes:
+    """Leica PTS: a point-count line, then ``x y z intensity`` (Open3D and CloudCompare).
+
+    Only coordinates and intensity travel in this format.
+    """
+    cols = _columns(cloud)
+    buffer = io.BytesIO()
+    buffer.write(f"{len(cloud)}\n".encode("ascii"))
+    np.savetxt(buffer, np.column_stack([cloud.points_turntable, cols["intensity"]]),
+               fmt=["%.9f"] * 3 + ["%.9g"], delimiter=" ")
+    return buffer.getvalue()
+
+
+def from_pts(data: bytes) -> PointCloud:
+    table = np.loadtxt(io.BytesIO(data), skiprows=1, ndmin=2)
+    names = ["x", "y", "z", "intensity", "red", "green", "blue"][:table.shape[1]]
+    rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
+    for i, name in enumerate(names):
+        rows[name] = table[:, i]
+    return _from_rows(rows)
+
+
+_TXT_COLUMNS = ["x", "y", "z"] + [name for name, _, _ in _FIELDS]
+
+
 def from_txt(data: bytes) -> PointCloud:
+    """Reads ASCII columns: named by a ``//`` or ``#`` header, else plantsim's order."""
     first = data.split(b"\n", 1)[0].decode("ascii", "replace")
-    names = first.lstrip("/#").split() if first.startswith(("//", "#")) else ["x", "y", "z"]
     table = np.loadtxt(io.BytesIO(data), comments=("//", "#"), ndmin=2)
+    if first.startswith(("//", "#")):
+        names = [n[3:] if n.startswith("SF_") else n.lower() for n in first.lstrip("/#").split()]
+    elif table.shape[1] == len(_TXT_COLUMNS):
+        names = list(_TXT_COLUMNS)
+    else:
+        names = ["x", "y", "z"]
+    names = names[:table.shape[1]] + [f"_col{i}" for i in range(len(names), table.shape[1])]
     rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
     for i, name in enumerate(names):
         rows[name] = table[:, i]
@@ -262,9 +394,13 @@ def from_txt(data: bytes) -> PointCloud:
 
 
 EXPORTERS: dict[str, Callable[[PointCloud], bytes]] = {
-    ".las": to_las, ".ply": to_ply, ".pcd": to_pcd, ".txt": to_txt, ".xyz": to_txt}
+    ".las": to_las, ".laz": to_laz, ".ply": to_ply, ".pcd": to_pcd, ".txt": to_txt,
+    ".xyz": to_xyz, ".pts": to_pts}
 READERS: dict[str, Callable[[bytes], PointCloud]] = {
-    ".las": from_las, ".ply": from_ply, ".pcd": from_pcd, ".txt": from_txt, ".xyz": from_txt}
+    ".las": from_las, ".laz": from_las, ".ply": from_ply, ".pcd": from_pcd, ".txt": from_txt,
+    ".xyz": from_txt, ".pts": from_pts}
+# Formats that carry only x y z and intensity.
+LOSSY_FORMATS = frozenset({".pts"})
 
 
 def check_output_path(path: str | os.PathLike) -> Path:
@@ -308,21 +444,31 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
         raise
 
 
-def encode_cloud(path: str | os.PathLike, cloud: PointCloud) -> bytes:
-    """The file contents of ``cloud`` in the format ``path``'s extension names."""
+def encode_cloud(path: str | os.PathLike, cloud: PointCloud, *, xyz_double: bool = False) -> bytes:
+    """The file contents of ``cloud`` in the format ``path``'s extension names.
+
+    Args:
+      path: only its extension is used.
+      cloud: the points.
+      xyz_double: PLY only: float64 coordinates instead of float32.
+    """
     suffix = Path(path).suffix.lower()
     if suffix not in EXPORTERS:
         raise ValueError(f"unknown point-cloud format {suffix!r}; use one of {', '.join(EXPORTERS)}")
+    if suffix == ".ply" and xyz_double:
+        return to_ply(cloud, xyz_double=True)
     return EXPORTERS[suffix](cloud)
 
 
-def write_cloud(path: str | os.PathLike, cloud: PointCloud, *, sidecar: dict | None = None) -> None:
+def write_cloud(path: str | os.PathLike, cloud: PointCloud, *, sidecar: dict | None = None,
+                xyz_double: bool = False) -> None:
     """Writes a cloud (and, if given, its sidecar ``<path>.json``), atomically.
 
     The cloud is encoded fully in memory before anything touches the disk.
+    ``xyz_double`` asks for float64 PLY coordinates (default float32).
     """
     path = check_output_path(path)
-    data = encode_cloud(path, cloud)
+    data = encode_cloud(path, cloud, xyz_double=xyz_double)
     if sidecar is not None:
         text = json.dumps(sidecar, indent=2, sort_keys=False, default=_json_default) + "\n"
         write_atomic(sidecar_path(path), text.encode("utf-8"))
@@ -335,7 +481,7 @@ def sidecar_path(path: str | os.PathLike) -> Path:
 
 
 def read_cloud(path: str | os.PathLike) -> PointCloud:
-    """Reads a point cloud written by plantsim (or any LAS/PLY/PCD/TXT with x y z)."""
+    """Reads a point cloud written by plantsim (or any LAS/LAZ/PLY/PCD/TXT with x y z)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READERS:
