@@ -284,7 +284,8 @@ class UrgEmulator:
 
     def sensor_ms(self, t_s: float) -> int:
         """The sensor timer's reading at clock time ``t_s``: ms mod 2^24."""
-        return math.floor((t_s + self.timestamp_offset_s) * 1000.0) % p.TIMESTAMP_MODULUS_MS
+        # Rounded to ns first: (t + offset) * 1000 of a whole ms must not floor to the ms before.
+        return math.floor(round((t_s + self.timestamp_offset_s) * 1000.0, 6)) % p.TIMESTAMP_MODULUS_MS
 
     # --- the loop -------------------------------------------------------------------
 

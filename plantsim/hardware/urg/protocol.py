@@ -100,10 +100,12 @@ def checksum(data: str) -> str:
     return chr((sum(data.encode("latin-1")) & 0x3F) + 0x30)
 
 
-def check_line(line: str) -> str:
+def check_line(line: str, *, semicolon_optional: bool = False) -> str:
     """A data or status line's data, its checksum character verified.
 
-    Key:value lines (``KEY:value;c``) are accepted with or without the ``;`` summed.
+    With ``semicolon_optional`` (VV/PP/II's ``KEY:value;c`` lines) the checksum may
+    or may not sum the ``;``; range data lines, where ``;`` is a data character, must
+    match exactly.
 
     Raises:
         ScipChecksumError: the checksum does not match.
@@ -114,7 +116,7 @@ def check_line(line: str) -> str:
     data, given = line[:-1], line[-1]
     if checksum(data) == given:
         return data
-    if data.endswith(";") and checksum(data[:-1]) == given:
+    if semicolon_optional and data.endswith(";") and checksum(data[:-1]) == given:
         return data
     raise ScipChecksumError(f"checksum mismatch in line {line!r}: expected {checksum(data)!r}")
 
@@ -227,11 +229,12 @@ def parse_reply(block: bytes) -> Reply:
         status = check_line(status_line)
     else:
         raise ScipFramingError(f"status line {status_line!r} after {echo!r} is not 2 characters + checksum")
+    key_values = echo[:2] in ("VV", "PP", "II")
     data = []
     for line in rest:
         if len(line) > MAX_LINE_CHARS + 1:
             raise ScipFramingError(f"data line of {len(line) - 1} characters (at most 64) after {echo!r}")
-        data.append(check_line(line))
+        data.append(check_line(line, semicolon_optional=key_values))
     return Reply(echo=echo, status=status, lines=tuple(data))
 
 
