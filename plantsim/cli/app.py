@@ -295,6 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_study_command(sub)
     __import__("plantsim.cli.sensor", fromlist=["add_sensor_commands"]).add_sensor_commands(sub)
     add_rig_commands(sub)
+    __import__("plantsim.cli.urg", fromlist=["add_urg_commands"]).add_urg_commands(sub)
     return parser
 
 
