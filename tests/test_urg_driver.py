@@ -274,3 +274,22 @@ def test_beam_times_follow_each_scan(rig):
     for scan, t in zip(scans, starts):
         assert scan.beam_host_times_s[0] == pytest.approx(t + 44 / 1024 * 0.1, abs=lidar.clock_offset.uncertainty_s + 1e-3)
         assert math.isclose(scan.beam_host_times_s[-1] - scan.beam_host_times_s[0], 682 / 1024 * 0.1)
+
+
+def test_preset_provider_beam_times_reach_the_driver_unchanged():
+    """A line source given each beam's instant (as the simulated LiDAR seeing the turning
+    table would be) comes back through SCIP with those instants as the beams' host times."""
+    from plantsim.hardware.urg import preset_provider
+
+    seen = []
+
+    def line(beam_times_s):
+        seen.append(beam_times_s)
+        return 1.0 + (beam_times_s - beam_times_s[0]) * 10.0, np.zeros(len(beam_times_s), dtype=np.int8)
+
+    clock = VirtualClock(start_s=1.0)
+    with UrgEmulator(preset_provider(line), clock=clock, timestamp_offset_s=7.0) as emulator:
+        with connect(emulator, clock) as lidar:
+            scan = lidar.scan()
+    np.testing.assert_allclose(scan.beam_host_times_s, seen[-1], atol=lidar.clock_offset.uncertainty_s + 1e-3)
+    np.testing.assert_allclose(scan.ranges_m, np.round(1000 * (1.0 + (seen[-1] - seen[-1][0]) * 10.0)) / 1000)

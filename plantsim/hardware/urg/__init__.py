@@ -12,7 +12,7 @@ imports this package.
 
 from plantsim.hardware.urg import protocol
 from plantsim.hardware.urg.driver import ClockOffset, UrgInfo, UrgLidar, UrgScan, check_model, estimate_offset
-from plantsim.hardware.urg.emulator import RealTimeClock, UrgEmulator, VirtualClock, wall_provider
+from plantsim.hardware.urg.emulator import RealTimeClock, UrgEmulator, VirtualClock, preset_provider, wall_provider
 
 __all__ = [
     "ClockOffset",
@@ -24,6 +24,7 @@ __all__ = [
     "VirtualClock",
     "check_model",
     "estimate_offset",
+    "preset_provider",
     "protocol",
     "wall_provider",
 ]

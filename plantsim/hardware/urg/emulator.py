@@ -140,6 +140,42 @@ def wall_provider(range_m: float = 1.0) -> ScanProvider:
     return provide
 
 
+def preset_provider(line_fn: Callable[[np.ndarray], "tuple[np.ndarray, np.ndarray]"],
+                    spec=None) -> ScanProvider:
+    """A provider from a line source that works on a preset's beams.
+
+    Args:
+        line_fn: ``f(beam_times_s) -> (range_m, status)``: given the (n_beams,) clock
+            times at which the preset's beams are measured (step ``first_step + i`` at
+            ``t_scan_start_s + (first_step + i) / 1024 * 0.1 s``), the beams' ranges (m,
+            NaN for none) and BeamStatus values, each (n_beams,). The simulated LiDAR
+            seeing the emulated turntable at each beam's instant fits here.
+        spec: the :class:`~plantsim.sensor.spec.LidarSpec` (default URG_04LX_UG01);
+            its beams must be steps of the URG-04LX (1024 per turn, 100 ms).
+
+    Steps outside the preset's beams return no echo.
+    """
+    from plantsim.sensor.spec import URG_04LX_UG01
+
+    spec = URG_04LX_UG01 if spec is None else spec
+    if spec.steps_per_rev != UrgEmulator.ARES or abs(spec.scan_period_s - UrgEmulator.SCAN_PERIOD_S) > 1e-12:
+        raise ValueError(f"spec {spec.name!r} is not a URG-04LX grid (1024 steps per 100 ms turn)")
+    first, last = spec.first_step, spec.first_step + spec.n_beams - 1
+    if last > UrgEmulator.LAST_STEP:
+        raise ValueError(f"spec {spec.name!r} reaches step {last}, beyond the URG-04LX's last step 768")
+    offsets_s = spec.beam_time_offsets_s()
+
+    def provide(t_scan_start_s: float):
+        ranges_m, status = line_fn(t_scan_start_s + offsets_s)
+        all_ranges = np.full(UrgEmulator.N_STEPS, np.nan)
+        all_status = np.full(UrgEmulator.N_STEPS, BeamStatus.NO_ECHO, dtype=np.int8)
+        all_ranges[first:last + 1] = ranges_m
+        all_status[first:last + 1] = status
+        return all_ranges, all_status
+
+    return provide
+
+
 class UrgEmulator:
     """A URG-04LX behind a pseudo-terminal.
 
@@ -276,6 +312,16 @@ class UrgEmulator:
             if self._master is not None:
                 os.close(self._master)
                 self._master = None
+
+    @classmethod
+    def step_angles_rad(cls) -> np.ndarray:
+        """Beam angle of every step 0..768 in the lidar frame: (k - AFRT) * 2 pi / ARES. (769,) float64."""
+        return (np.arange(cls.N_STEPS) - cls.AFRT) * (2 * math.pi / cls.ARES)
+
+    @classmethod
+    def step_time_offsets_s(cls) -> np.ndarray:
+        """When each step is measured after the scan's step 0: k / ARES * 100 ms. (769,) float64, s."""
+        return np.arange(cls.N_STEPS) / cls.ARES * cls.SCAN_PERIOD_S
 
     @property
     def streaming(self) -> bool:
@@ -458,7 +504,7 @@ class UrgEmulator:
         if params:
             return t_s, self._reply(line, "0C")
         self._stream = None
-        self._queue = [(t, d) for t, d in self._queue if not d.startswith((b"MD", b"MS"))]
+        self._queue = [(t, d) for t, d in self._queue if b"\n99b\n" not in d[:40]]  # streamed scans not yet sent
         self._set_laser(False, t_s)
         return t_s, self._reply(line, "00")
 
