@@ -207,11 +207,11 @@ def test_stalled_stream_times_out_and_laser_off_is_not_confirmed(rig):
     emulator, clock, _ = rig
     lidar = connect(emulator, clock, timeout_s=0.3, retries=1)
     got = []
+    emulator.inject_stall(after_scans=2)  # two whole scans, half of the third, then silence
     with pytest.raises(LidarTimeoutError, match=f"LiDAR on {emulator.port_path} stopped streaming.*after 2 scans"):
         for scan in lidar.stream():
             got.append(scan)
-            if len(got) == 1:
-                emulator.inject_stall(after_scans=1)
+    assert len(got) == 2
     assert lidar.laser_off() is False  # the stalled sensor cannot confirm
     emulator.clear_faults()
     assert lidar.laser_off() is True
