@@ -296,6 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
     __import__("plantsim.cli.sensor", fromlist=["add_sensor_commands"]).add_sensor_commands(sub)
     add_rig_commands(sub)
     __import__("plantsim.cli.render", fromlist=["add_render_command"]).add_render_command(sub)
+    __import__("plantsim.cli.urg", fromlist=["add_urg_commands"]).add_urg_commands(sub)
     return parser
 
 
