@@ -622,7 +622,7 @@ class UrgEmulator:
         raw = p.raw_from_ranges(ranges_m, beam_status, n_chars=n_chars)[start:end + 1]
         if cluster > 1:
             raw = np.array([_cluster_value(raw[i:i + cluster]) for i in range(0, len(raw), cluster)])
-        data = "".join(p.encode(int(v), n_chars) for v in raw)
+        data = p.encode_array(raw, n_chars)
         lines = [self._line(p.encode(self.sensor_ms(t_scan_s), 4))] + self._data(data)
         return self._reply(echo, status, lines)
 
