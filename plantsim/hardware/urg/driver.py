@@ -163,6 +163,9 @@ class ClockOffset:
         round_trip_s: the best (least) round trip, s.
         host_time_s: host time of that round trip's middle, s.
         n_round_trips: round trips tried.
+        drift: how fast the offset grows, s per host s (the sensor crystal's rate
+            error; 1e-4 is 100 ppm), from this and an earlier estimate; 0: unknown.
+            ``offset(t) = offset_s + drift * (t - host_time_s)``.
     """
 
     offset_s: float
@@ -170,10 +173,12 @@ class ClockOffset:
     round_trip_s: float
     host_time_s: float
     n_round_trips: int
+    drift: float = 0.0
 
     def host_from_sensor(self, sensor_s):
-        """Host time of a sensor time (s, unwrapped)."""
-        return np.asarray(sensor_s, dtype=np.float64) - self.offset_s
+        """Host time of a sensor time (s, unwrapped), the drift taken into account."""
+        sensor_s = np.asarray(sensor_s, dtype=np.float64)
+        return (sensor_s - self.offset_s + self.drift * self.host_time_s) / (1.0 + self.drift)
 
 
 def estimate_offset(samples: list[tuple[float, int, float]]) -> ClockOffset:
@@ -254,11 +259,13 @@ class UrgLidar:
         host_clock: the host's clock, s (``time.monotonic``; tests share a virtual clock).
         sleep: the host's pause (tests advance their virtual clock).
         clock_sync_round_trips: TM1 round trips per :meth:`sync_clock`.
+        drift_baseline_s: two clock syncs at least this far apart (host s) also
+            estimate the sensor clock's drift (:attr:`ClockOffset.drift`).
     """
 
     def __init__(self, *, preset: LidarSpec | None = URG_04LX_UG01, timeout_s: float = 1.0, retries: int = 2,
                  host_clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-                 clock_sync_round_trips: int = 10):
+                 clock_sync_round_trips: int = 10, drift_baseline_s: float = 10.0):
         if not (isinstance(timeout_s, (int, float)) and 0 < timeout_s <= 60):
             raise ValueError(f"timeout_s must be in (0, 60] s, got {timeout_s!r}")
         if not (isinstance(retries, int) and 0 <= retries <= 10):
@@ -273,6 +280,7 @@ class UrgLidar:
         self.host_clock = host_clock
         self.sleep = sleep
         self.clock_sync_round_trips = clock_sync_round_trips
+        self.drift_baseline_s = float(drift_baseline_s)
         self.port: str | None = None
         self.baud_bps = 115_200
         self.info: UrgInfo | None = None
@@ -438,9 +446,17 @@ class UrgLidar:
         finally:
             self._command("TM", "2", accept=("00", "03"))
         self.laser_is_on = False
-        self.clock_offset = estimate_offset(samples)
-        _log.info("LiDAR clock offset %.4f s +- %.4f s (best round trip %.4f s of %d)", self.clock_offset.offset_s,
-                  self.clock_offset.uncertainty_s, self.clock_offset.round_trip_s, n)
+        offset = estimate_offset(samples)
+        previous = self.clock_offset
+        if previous is not None and offset.host_time_s - previous.host_time_s >= self.drift_baseline_s:
+            drift = (offset.offset_s - previous.offset_s) / (offset.host_time_s - previous.host_time_s)
+            if abs(drift) < 1e-3:  # a crystal is off by ppm, not per mille: anything more is a glitch
+                offset = dataclasses.replace(offset, drift=drift)
+            else:
+                _log.warning("LiDAR clock drift of %.0f ppm is implausible (a reset?); ignored", drift * 1e6)
+        self.clock_offset = offset
+        _log.info("LiDAR clock offset %.4f s +- %.4f s (best round trip %.4f s of %d), drift %.1f ppm",
+                  offset.offset_s, offset.uncertainty_s, offset.round_trip_s, n, offset.drift * 1e6)
         if was_on:
             self.laser_on()
         return self.clock_offset

@@ -188,6 +188,8 @@ class UrgEmulator:
             (the host/sensor clock offset a driver must estimate).
         latency_s: one-way delay of the link, s: a command is taken in after it,
             the reply leaves ``2 * latency_s`` after it was read.
+        clock_drift_ppm: how fast the sensor's timer runs against the clock, parts
+            per million (a crystal's tens of ppm).
         start_in_scip11: boot in SCIP 1.1, as some URG-04LX firmware does.
         model, serial, firmware: what PP/VV/II report.
         semicolon_in_checksum: sum the ``;`` of VV/PP/II lines (later sensors);
@@ -206,12 +208,14 @@ class UrgEmulator:
     SCAN_PERIOD_S = 60.0 / SCAN_RPM
 
     def __init__(self, scan_provider: ScanProvider | None = None, *, clock=None,
-                 timestamp_offset_s: float = 0.0, latency_s: float = 0.0, start_in_scip11: bool = False,
+                 timestamp_offset_s: float = 0.0, latency_s: float = 0.0, clock_drift_ppm: float = 0.0,
+                 start_in_scip11: bool = False,
                  model: str = "URG-04LX", serial: str = "H0000001",
                  firmware: str = "3.3.00(22/Feb./2008)", semicolon_in_checksum: bool = False):
         if scan_provider is not None and not callable(scan_provider):
             raise ValueError(f"scan_provider must be callable, got {scan_provider!r}")
-        for name, value in (("timestamp_offset_s", timestamp_offset_s), ("latency_s", latency_s)):
+        for name, value in (("timestamp_offset_s", timestamp_offset_s), ("latency_s", latency_s),
+                            ("clock_drift_ppm", clock_drift_ppm)):
             if not (isinstance(value, (int, float)) and math.isfinite(value)):
                 raise ValueError(f"{name} must be a finite number, got {value!r}")
         if latency_s < 0:
@@ -220,6 +224,7 @@ class UrgEmulator:
         self.clock = clock if clock is not None else RealTimeClock()
         self.timestamp_offset_s = float(timestamp_offset_s)
         self.latency_s = float(latency_s)
+        self.clock_drift_ppm = float(clock_drift_ppm)
         self.model, self.serial, self.firmware = model, serial, firmware
         self.semicolon_in_checksum = semicolon_in_checksum
         self.scip2 = not start_in_scip11
@@ -331,7 +336,8 @@ class UrgEmulator:
     def sensor_ms(self, t_s: float) -> int:
         """The sensor timer's reading at clock time ``t_s``: ms mod 2^24."""
         # Rounded to ns first: (t + offset) * 1000 of a whole ms must not floor to the ms before.
-        return math.floor(round((t_s + self.timestamp_offset_s) * 1000.0, 6)) % p.TIMESTAMP_MODULUS_MS
+        sensor_s = t_s * (1.0 + 1e-6 * self.clock_drift_ppm) + self.timestamp_offset_s
+        return math.floor(round(sensor_s * 1000.0, 6)) % p.TIMESTAMP_MODULUS_MS
 
     # --- the loop -------------------------------------------------------------------
 
@@ -512,7 +518,7 @@ class UrgEmulator:
         if params:
             return t_s, self._reply(line, "0C")
         self._qt(line, "QT", "", tag, t_s)
-        self.timestamp_offset_s = -t_s  # RS resets the sensor's timer ([SCIP] 8.5)
+        self.timestamp_offset_s = -t_s * (1.0 + 1e-6 * self.clock_drift_ppm)  # RS resets the timer ([SCIP] 8.5)
         return t_s, self._reply(line, "00")
 
     def _tm(self, line, symbol, params, tag, t_s):
