@@ -258,11 +258,12 @@ def test_laser_off_on_exit_even_after_an_error(rig):
 def test_stop_action_with_safe_stop(rig):
     emulator, clock, _ = rig
     with SafeStop(signals=(), sleep=lambda s: None) as safety:
-        lidar = connect(emulator, clock)
-        safety.register(lidar.stop_action())
+        lidar = connect(emulator, clock, safety=safety)
         lidar.laser_on()
     assert safety.report.safe and not emulator.laser_on
-    lidar.close()
+    assert lidar.close() is True
+    n_commands = len(emulator.commands)
+    assert lidar.laser_off() is True and len(emulator.commands) == n_commands  # closed: the port stays shut
 
 
 def test_beam_times_follow_each_scan(rig):

@@ -292,17 +292,21 @@ class UrgLidar:
         self._tags = itertools.count(1)
         self._last_sensor_ms: int | None = None
         self._pending_blocks: list[bytes] = []
+        self._closed_confirmed = False
 
     # --- connection -------------------------------------------------------------------
 
     @classmethod
-    def connect(cls, port: str, *, baud_bps: int = 115_200, sync_clock: bool = True, **options) -> "UrgLidar":
+    def connect(cls, port: str, *, baud_bps: int = 115_200, sync_clock: bool = True, safety=None,
+                **options) -> "UrgLidar":
         """Opens ``port``, brings the sensor to SCIP 2.0 with its laser off, reads VV/PP/II,
         checks the model against ``preset`` and (``sync_clock``) estimates the clock offset.
 
         Args:
             port: ``/dev/ttyACM0``, ``/dev/serial/by-id/usb-Hokuyo...``, an emulator's pty.
             baud_bps: RS-232 units only; ignored over USB.
+            safety: a :class:`~plantsim.hardware.safety.SafeStop` to register the laser's
+                stop action with, as soon as the port is open.
             **options: :class:`UrgLidar`'s arguments.
 
         Raises:
@@ -311,6 +315,8 @@ class UrgLidar:
         """
         lidar = cls(**options)
         lidar.open(port, baud_bps=baud_bps)
+        if safety is not None:
+            safety.register(lidar.stop_action())
         try:
             lidar.handshake()
             if sync_clock:
@@ -333,6 +339,7 @@ class UrgLidar:
             raise LidarDisconnectedError(f"cannot open the LiDAR's port {port}: {exc}; {_PORT_ADVICE}") from exc
         self._parser.clear()
         self._pending_blocks = []
+        self._closed_confirmed = False
 
     def handshake(self) -> UrgInfo:
         """QT (SCIP 1.1 / time-adjust recovery), VV, PP, II and the model check."""
@@ -373,6 +380,7 @@ class UrgLidar:
             except Exception:  # noqa: BLE001 - closing a dead port must not hide the real error
                 _log.debug("closing %s failed", self.port, exc_info=True)
             self._serial = None
+            self._closed_confirmed = confirmed
         return confirmed
 
     def __enter__(self) -> "UrgLidar":
@@ -395,6 +403,8 @@ class UrgLidar:
             True when the sensor confirmed (status 00, or time-adjust mode, in which
             the laser is off); False, logged as a warning, when it could not be.
         """
+        if self._serial is None and self._closed_confirmed:
+            return True  # closed after a confirmed QT
         if self._serial is None and self.port is not None:
             try:
                 self.open(self.port, baud_bps=self.baud_bps)
