@@ -14,7 +14,7 @@ from plantsim.errors import (LidarChecksumError, LidarDisconnectedError, LidarMo
                              LidarTimeoutError)
 from plantsim.hardware.safety import SafeStop
 from plantsim.hardware.urg import UrgEmulator, UrgLidar, VirtualClock
-from plantsim.hardware.urg.driver import ClockOffset, estimate_offset
+from plantsim.hardware.urg.clock import ClockOffset, estimate_offset
 from plantsim.sensor.spec import URG_04LX_UG01, UTM_30LX, BeamStatus
 
 pytest.importorskip("serial")

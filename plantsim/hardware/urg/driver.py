@@ -42,6 +42,7 @@ import numpy as np
 from plantsim.errors import (LidarChecksumError, LidarDisconnectedError, LidarError, LidarModelError,
                              LidarStatusError, LidarTimeoutError)
 from plantsim.hardware.urg import protocol as p
+from plantsim.hardware.urg.clock import ClockOffset, estimate_offset
 from plantsim.sensor.spec import URG_04LX_UG01, BeamStatus, LidarSpec
 
 _log = logging.getLogger(__name__)
@@ -149,55 +150,6 @@ def check_model(info: UrgInfo, spec: LidarSpec, *, port: str = "the port") -> No
     if last > info.amax:
         _log.info("preset %s reads up to step %d, beyond AMAX=%d: those beams lie outside the sensor's "
                   "specified field of view", spec.name, last, info.amax)
-
-
-@dataclasses.dataclass(frozen=True)
-class ClockOffset:
-    """The sensor's clock against the host's: ``sensor_s = host_s + offset_s``.
-
-    Attributes:
-        offset_s: sensor time minus host time, s (sensor time unwrapped from the
-            24-bit ms timer, in s).
-        uncertainty_s: half the best round trip plus half a timer tick, s: the
-            offset is within +-uncertainty_s whatever the split of the delay.
-        round_trip_s: the best (least) round trip, s.
-        host_time_s: host time of that round trip's middle, s.
-        n_round_trips: round trips tried.
-        drift: how fast the offset grows, s per host s (the sensor crystal's rate
-            error; 1e-4 is 100 ppm), from this and an earlier estimate; 0: unknown.
-            ``offset(t) = offset_s + drift * (t - host_time_s)``.
-    """
-
-    offset_s: float
-    uncertainty_s: float
-    round_trip_s: float
-    host_time_s: float
-    n_round_trips: int
-    drift: float = 0.0
-
-    def host_from_sensor(self, sensor_s):
-        """Host time of a sensor time (s, unwrapped), the drift taken into account."""
-        sensor_s = np.asarray(sensor_s, dtype=np.float64)
-        return (sensor_s - self.offset_s + self.drift * self.host_time_s) / (1.0 + self.drift)
-
-
-def estimate_offset(samples: list[tuple[float, int, float]]) -> ClockOffset:
-    """The offset from TM1 round trips ``(host_sent_s, sensor_ms, host_received_s)``.
-
-    The sensor read its timer somewhere inside each round trip; the shortest round
-    trip brackets it tightest, so its midpoint is taken (the minimum-delay filter of
-    NTP and of Cristian's algorithm). ``sensor_ms`` is unwrapped ms; the timer
-    counts whole ms, so the reading's own middle is ``sensor_ms + 0.5``.
-    """
-    if not samples:
-        raise ValueError("samples must hold at least one round trip")
-    sent, sensor_ms, received = min(samples, key=lambda s: s[2] - s[0])
-    round_trip = received - sent
-    if round_trip < 0:
-        raise ValueError(f"a round trip ended before it began ({sent} -> {received}): is the host clock monotonic?")
-    middle = 0.5 * (sent + received)
-    return ClockOffset(offset_s=(sensor_ms + 0.5) / 1000.0 - middle, uncertainty_s=0.5 * round_trip + 0.0005,
-                       round_trip_s=round_trip, host_time_s=middle, n_round_trips=len(samples))
 
 
 @dataclasses.dataclass(frozen=True)

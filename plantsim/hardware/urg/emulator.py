@@ -47,77 +47,18 @@ import select
 import struct
 import termios
 import threading
-import time
 import tty
 from typing import Callable
 
 import numpy as np
 
 from plantsim.hardware.urg import protocol as p
+from plantsim.hardware.urg.clock import RealTimeClock, VirtualClock  # noqa: F401 - VirtualClock re-exported here too
 from plantsim.sensor.spec import BeamStatus
 
 _log = logging.getLogger(__name__)
 
 ScanProvider = Callable[[float], "tuple[np.ndarray, np.ndarray]"]
-
-
-# --- clocks -----------------------------------------------------------------------
-
-class VirtualClock:
-    """Simulated seconds that move only when told: ``advance``, ``advance_to``, ``sleep``.
-
-    Thread-safe. Shared by the emulator (which advances it while it waits for a scan
-    or a reply) and by a test's driver (``host_clock=clock.now, sleep=clock.sleep``).
-    """
-
-    is_virtual = True
-
-    def __init__(self, start_s: float = 0.0):
-        self._now = float(start_s)
-        self._lock = threading.Lock()
-
-    def now(self) -> float:
-        with self._lock:
-            return self._now
-
-    def advance_to(self, t_s: float) -> None:
-        """Moves to ``t_s`` (never backwards)."""
-        with self._lock:
-            self._now = max(self._now, float(t_s))
-
-    def advance(self, dt_s: float) -> None:
-        if not dt_s >= 0:
-            raise ValueError(f"dt_s must be >= 0, got {dt_s!r}")
-        with self._lock:
-            self._now += float(dt_s)
-
-    def sleep(self, dt_s: float) -> None:
-        """A driver's pause: the clock moves on at once."""
-        self.advance(max(0.0, dt_s))
-
-
-class RealTimeClock:
-    """Wall time (``time.perf_counter``) since creation, times ``speed_factor``."""
-
-    is_virtual = False
-
-    def __init__(self, speed_factor: float = 1.0):
-        if not (math.isfinite(speed_factor) and speed_factor > 0):
-            raise ValueError(f"speed_factor must be finite and > 0, got {speed_factor!r}")
-        self.speed_factor = float(speed_factor)
-        self._t0 = time.perf_counter()
-
-    def now(self) -> float:
-        return (time.perf_counter() - self._t0) * self.speed_factor
-
-    def advance_to(self, t_s: float) -> None:
-        delay = (t_s - self.now()) / self.speed_factor
-        if delay > 0:
-            time.sleep(delay)
-
-    def sleep(self, dt_s: float) -> None:
-        if dt_s > 0:
-            time.sleep(dt_s / self.speed_factor)
 
 
 # --- the sensor ---------------------------------------------------------------------
