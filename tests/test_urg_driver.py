@@ -14,7 +14,7 @@ from plantsim.errors import (LidarChecksumError, LidarDisconnectedError, LidarMo
                              LidarTimeoutError)
 from plantsim.hardware.safety import SafeStop
 from plantsim.hardware.urg import UrgEmulator, UrgLidar, VirtualClock
-from plantsim.hardware.urg.driver import ClockOffset, estimate_offset
+from plantsim.hardware.urg.clock import ClockOffset, estimate_offset
 from plantsim.sensor.spec import URG_04LX_UG01, UTM_30LX, BeamStatus
 
 pytest.importorskip("serial")
@@ -258,11 +258,12 @@ def test_laser_off_on_exit_even_after_an_error(rig):
 def test_stop_action_with_safe_stop(rig):
     emulator, clock, _ = rig
     with SafeStop(signals=(), sleep=lambda s: None) as safety:
-        lidar = connect(emulator, clock)
-        safety.register(lidar.stop_action())
+        lidar = connect(emulator, clock, safety=safety)
         lidar.laser_on()
     assert safety.report.safe and not emulator.laser_on
-    lidar.close()
+    assert lidar.close() is True
+    n_commands = len(emulator.commands)
+    assert lidar.laser_off() is True and len(emulator.commands) == n_commands  # closed: the port stays shut
 
 
 def test_beam_times_follow_each_scan(rig):
@@ -293,3 +294,18 @@ def test_preset_provider_beam_times_reach_the_driver_unchanged():
             scan = lidar.scan()
     np.testing.assert_allclose(scan.beam_host_times_s, seen[-1], atol=lidar.clock_offset.uncertainty_s + 1e-3)
     np.testing.assert_allclose(scan.ranges_m, np.round(1000 * (1.0 + (seen[-1] - seen[-1][0]) * 10.0)) / 1000)
+
+
+def test_clock_drift_is_estimated_from_two_syncs():
+    clock = VirtualClock(start_s=5.0)
+    with UrgEmulator(clock=clock, timestamp_offset_s=20.0, clock_drift_ppm=80.0, latency_s=0.0005) as emulator:
+        with connect(emulator, clock) as lidar:
+            assert lidar.clock_offset.drift == 0.0
+            clock.advance(100.0)
+            offset = lidar.sync_clock()
+            assert offset.drift == pytest.approx(80e-6, abs=2 * (2 * offset.uncertainty_s) / 100.0)
+            clock.advance(200.0)  # long after the sync: the drift keeps the beams on time
+            scan = lidar.scan()
+    t_step0 = round(scan.sensor_time_s * 1000) / 1000  # invert the emulator's sensor timer exactly
+    t_scan = (t_step0 - 20.0) / (1 + 80e-6)
+    assert scan.beam_host_times_s[0] == pytest.approx(t_scan + 44 / 1024 * 0.1, abs=2e-3)

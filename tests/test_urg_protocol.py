@@ -56,6 +56,7 @@ def test_round_trip_random_values():
     for n_chars in (2, 3, 4):
         values = rng.integers(0, 1 << (6 * n_chars), size=200)
         chars = "".join(p.encode(int(v), n_chars) for v in values)
+        assert p.encode_array(values, n_chars) == chars
         np.testing.assert_array_equal(p.decode_array(chars, n_chars), values)
 
 

@@ -3,16 +3,18 @@
 * :mod:`~plantsim.hardware.urg.protocol`: encodings, checksums, commands, replies,
   range decoding and the error-code table, as pure functions; a streaming parser.
 * :mod:`~plantsim.hardware.urg.driver`: :class:`UrgLidar` over ``pyserial``.
-* :mod:`~plantsim.hardware.urg.emulator`: :class:`UrgEmulator`, the sensor on a pty,
-  with :class:`VirtualClock` / :class:`RealTimeClock`.
+* :mod:`~plantsim.hardware.urg.clock`: :class:`VirtualClock` / :class:`RealTimeClock`
+  and the host/sensor :class:`ClockOffset`.
+* :mod:`~plantsim.hardware.urg.emulator`: :class:`UrgEmulator`, the sensor on a pty.
 
 ``pyserial`` is imported only when a port is opened; ``import plantsim`` never
 imports this package.
 """
 
 from plantsim.hardware.urg import protocol
-from plantsim.hardware.urg.driver import ClockOffset, UrgInfo, UrgLidar, UrgScan, check_model, estimate_offset
-from plantsim.hardware.urg.emulator import RealTimeClock, UrgEmulator, VirtualClock, preset_provider, wall_provider
+from plantsim.hardware.urg.clock import ClockOffset, RealTimeClock, VirtualClock, estimate_offset
+from plantsim.hardware.urg.driver import UrgInfo, UrgLidar, UrgScan, check_model
+from plantsim.hardware.urg.emulator import UrgEmulator, preset_provider, wall_provider
 
 __all__ = [
     "ClockOffset",

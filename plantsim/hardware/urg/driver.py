@@ -42,6 +42,7 @@ import numpy as np
 from plantsim.errors import (LidarChecksumError, LidarDisconnectedError, LidarError, LidarModelError,
                              LidarStatusError, LidarTimeoutError)
 from plantsim.hardware.urg import protocol as p
+from plantsim.hardware.urg.clock import ClockOffset, estimate_offset
 from plantsim.sensor.spec import URG_04LX_UG01, BeamStatus, LidarSpec
 
 _log = logging.getLogger(__name__)
@@ -152,50 +153,6 @@ def check_model(info: UrgInfo, spec: LidarSpec, *, port: str = "the port") -> No
 
 
 @dataclasses.dataclass(frozen=True)
-class ClockOffset:
-    """The sensor's clock against the host's: ``sensor_s = host_s + offset_s``.
-
-    Attributes:
-        offset_s: sensor time minus host time, s (sensor time unwrapped from the
-            24-bit ms timer, in s).
-        uncertainty_s: half the best round trip plus half a timer tick, s: the
-            offset is within +-uncertainty_s whatever the split of the delay.
-        round_trip_s: the best (least) round trip, s.
-        host_time_s: host time of that round trip's middle, s.
-        n_round_trips: round trips tried.
-    """
-
-    offset_s: float
-    uncertainty_s: float
-    round_trip_s: float
-    host_time_s: float
-    n_round_trips: int
-
-    def host_from_sensor(self, sensor_s):
-        """Host time of a sensor time (s, unwrapped)."""
-        return np.asarray(sensor_s, dtype=np.float64) - self.offset_s
-
-
-def estimate_offset(samples: list[tuple[float, int, float]]) -> ClockOffset:
-    """The offset from TM1 round trips ``(host_sent_s, sensor_ms, host_received_s)``.
-
-    The sensor read its timer somewhere inside each round trip; the shortest round
-    trip brackets it tightest, so its midpoint is taken (the minimum-delay filter of
-    NTP and of Cristian's algorithm). ``sensor_ms`` is unwrapped ms; the timer
-    counts whole ms, so the reading's own middle is ``sensor_ms + 0.5``.
-    """
-    if not samples:
-        raise ValueError("samples must hold at least one round trip")
-    sent, sensor_ms, received = min(samples, key=lambda s: s[2] - s[0])
-    round_trip = received - sent
-    if round_trip < 0:
-        raise ValueError(f"a round trip ended before it began ({sent} -> {received}): is the host clock monotonic?")
-    middle = 0.5 * (sent + received)
-    return ClockOffset(offset_s=(sensor_ms + 0.5) / 1000.0 - middle, uncertainty_s=0.5 * round_trip + 0.0005,
-                       round_trip_s=round_trip, host_time_s=middle, n_round_trips=len(samples))
-
-
-@dataclasses.dataclass(frozen=True)
 class UrgScan:
     """One scan line as the sensor sent it, with angles and times.
 
@@ -254,11 +211,13 @@ class UrgLidar:
         host_clock: the host's clock, s (``time.monotonic``; tests share a virtual clock).
         sleep: the host's pause (tests advance their virtual clock).
         clock_sync_round_trips: TM1 round trips per :meth:`sync_clock`.
+        drift_baseline_s: two clock syncs at least this far apart (host s) also
+            estimate the sensor clock's drift (:attr:`ClockOffset.drift`).
     """
 
     def __init__(self, *, preset: LidarSpec | None = URG_04LX_UG01, timeout_s: float = 1.0, retries: int = 2,
                  host_clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-                 clock_sync_round_trips: int = 10):
+                 clock_sync_round_trips: int = 10, drift_baseline_s: float = 10.0):
         if not (isinstance(timeout_s, (int, float)) and 0 < timeout_s <= 60):
             raise ValueError(f"timeout_s must be in (0, 60] s, got {timeout_s!r}")
         if not (isinstance(retries, int) and 0 <= retries <= 10):
@@ -273,6 +232,7 @@ class UrgLidar:
         self.host_clock = host_clock
         self.sleep = sleep
         self.clock_sync_round_trips = clock_sync_round_trips
+        self.drift_baseline_s = float(drift_baseline_s)
         self.port: str | None = None
         self.baud_bps = 115_200
         self.info: UrgInfo | None = None
@@ -284,17 +244,21 @@ class UrgLidar:
         self._tags = itertools.count(1)
         self._last_sensor_ms: int | None = None
         self._pending_blocks: list[bytes] = []
+        self._closed_confirmed = False
 
     # --- connection -------------------------------------------------------------------
 
     @classmethod
-    def connect(cls, port: str, *, baud_bps: int = 115_200, sync_clock: bool = True, **options) -> "UrgLidar":
+    def connect(cls, port: str, *, baud_bps: int = 115_200, sync_clock: bool = True, safety=None,
+                **options) -> "UrgLidar":
         """Opens ``port``, brings the sensor to SCIP 2.0 with its laser off, reads VV/PP/II,
         checks the model against ``preset`` and (``sync_clock``) estimates the clock offset.
 
         Args:
             port: ``/dev/ttyACM0``, ``/dev/serial/by-id/usb-Hokuyo...``, an emulator's pty.
             baud_bps: RS-232 units only; ignored over USB.
+            safety: a :class:`~plantsim.hardware.safety.SafeStop` to register the laser's
+                stop action with, as soon as the port is open.
             **options: :class:`UrgLidar`'s arguments.
 
         Raises:
@@ -303,6 +267,8 @@ class UrgLidar:
         """
         lidar = cls(**options)
         lidar.open(port, baud_bps=baud_bps)
+        if safety is not None:
+            safety.register(lidar.stop_action())
         try:
             lidar.handshake()
             if sync_clock:
@@ -325,6 +291,7 @@ class UrgLidar:
             raise LidarDisconnectedError(f"cannot open the LiDAR's port {port}: {exc}; {_PORT_ADVICE}") from exc
         self._parser.clear()
         self._pending_blocks = []
+        self._closed_confirmed = False
 
     def handshake(self) -> UrgInfo:
         """QT (SCIP 1.1 / time-adjust recovery), VV, PP, II and the model check."""
@@ -365,6 +332,7 @@ class UrgLidar:
             except Exception:  # noqa: BLE001 - closing a dead port must not hide the real error
                 _log.debug("closing %s failed", self.port, exc_info=True)
             self._serial = None
+            self._closed_confirmed = confirmed
         return confirmed
 
     def __enter__(self) -> "UrgLidar":
@@ -387,6 +355,8 @@ class UrgLidar:
             True when the sensor confirmed (status 00, or time-adjust mode, in which
             the laser is off); False, logged as a warning, when it could not be.
         """
+        if self._serial is None and self._closed_confirmed:
+            return True  # closed after a confirmed QT
         if self._serial is None and self.port is not None:
             try:
                 self.open(self.port, baud_bps=self.baud_bps)
@@ -438,9 +408,17 @@ class UrgLidar:
         finally:
             self._command("TM", "2", accept=("00", "03"))
         self.laser_is_on = False
-        self.clock_offset = estimate_offset(samples)
-        _log.info("LiDAR clock offset %.4f s +- %.4f s (best round trip %.4f s of %d)", self.clock_offset.offset_s,
-                  self.clock_offset.uncertainty_s, self.clock_offset.round_trip_s, n)
+        offset = estimate_offset(samples)
+        previous = self.clock_offset
+        if previous is not None and offset.host_time_s - previous.host_time_s >= self.drift_baseline_s:
+            drift = (offset.offset_s - previous.offset_s) / (offset.host_time_s - previous.host_time_s)
+            if abs(drift) < 1e-3:  # a crystal is off by ppm, not per mille: anything more is a glitch
+                offset = dataclasses.replace(offset, drift=drift)
+            else:
+                _log.warning("LiDAR clock drift of %.0f ppm is implausible (a reset?); ignored", drift * 1e6)
+        self.clock_offset = offset
+        _log.info("LiDAR clock offset %.4f s +- %.4f s (best round trip %.4f s of %d), drift %.1f ppm",
+                  offset.offset_s, offset.uncertainty_s, offset.round_trip_s, n, offset.drift * 1e6)
         if was_on:
             self.laser_on()
         return self.clock_offset

@@ -47,77 +47,18 @@ import select
 import struct
 import termios
 import threading
-import time
 import tty
 from typing import Callable
 
 import numpy as np
 
 from plantsim.hardware.urg import protocol as p
+from plantsim.hardware.urg.clock import RealTimeClock, VirtualClock  # noqa: F401 - VirtualClock re-exported here too
 from plantsim.sensor.spec import BeamStatus
 
 _log = logging.getLogger(__name__)
 
 ScanProvider = Callable[[float], "tuple[np.ndarray, np.ndarray]"]
-
-
-# --- clocks -----------------------------------------------------------------------
-
-class VirtualClock:
-    """Simulated seconds that move only when told: ``advance``, ``advance_to``, ``sleep``.
-
-    Thread-safe. Shared by the emulator (which advances it while it waits for a scan
-    or a reply) and by a test's driver (``host_clock=clock.now, sleep=clock.sleep``).
-    """
-
-    is_virtual = True
-
-    def __init__(self, start_s: float = 0.0):
-        self._now = float(start_s)
-        self._lock = threading.Lock()
-
-    def now(self) -> float:
-        with self._lock:
-            return self._now
-
-    def advance_to(self, t_s: float) -> None:
-        """Moves to ``t_s`` (never backwards)."""
-        with self._lock:
-            self._now = max(self._now, float(t_s))
-
-    def advance(self, dt_s: float) -> None:
-        if not dt_s >= 0:
-            raise ValueError(f"dt_s must be >= 0, got {dt_s!r}")
-        with self._lock:
-            self._now += float(dt_s)
-
-    def sleep(self, dt_s: float) -> None:
-        """A driver's pause: the clock moves on at once."""
-        self.advance(max(0.0, dt_s))
-
-
-class RealTimeClock:
-    """Wall time (``time.perf_counter``) since creation, times ``speed_factor``."""
-
-    is_virtual = False
-
-    def __init__(self, speed_factor: float = 1.0):
-        if not (math.isfinite(speed_factor) and speed_factor > 0):
-            raise ValueError(f"speed_factor must be finite and > 0, got {speed_factor!r}")
-        self.speed_factor = float(speed_factor)
-        self._t0 = time.perf_counter()
-
-    def now(self) -> float:
-        return (time.perf_counter() - self._t0) * self.speed_factor
-
-    def advance_to(self, t_s: float) -> None:
-        delay = (t_s - self.now()) / self.speed_factor
-        if delay > 0:
-            time.sleep(delay)
-
-    def sleep(self, dt_s: float) -> None:
-        if dt_s > 0:
-            time.sleep(dt_s / self.speed_factor)
 
 
 # --- the sensor ---------------------------------------------------------------------
@@ -188,6 +129,8 @@ class UrgEmulator:
             (the host/sensor clock offset a driver must estimate).
         latency_s: one-way delay of the link, s: a command is taken in after it,
             the reply leaves ``2 * latency_s`` after it was read.
+        clock_drift_ppm: how fast the sensor's timer runs against the clock, parts
+            per million (a crystal's tens of ppm).
         start_in_scip11: boot in SCIP 1.1, as some URG-04LX firmware does.
         model, serial, firmware: what PP/VV/II report.
         semicolon_in_checksum: sum the ``;`` of VV/PP/II lines (later sensors);
@@ -206,12 +149,14 @@ class UrgEmulator:
     SCAN_PERIOD_S = 60.0 / SCAN_RPM
 
     def __init__(self, scan_provider: ScanProvider | None = None, *, clock=None,
-                 timestamp_offset_s: float = 0.0, latency_s: float = 0.0, start_in_scip11: bool = False,
+                 timestamp_offset_s: float = 0.0, latency_s: float = 0.0, clock_drift_ppm: float = 0.0,
+                 start_in_scip11: bool = False,
                  model: str = "URG-04LX", serial: str = "H0000001",
                  firmware: str = "3.3.00(22/Feb./2008)", semicolon_in_checksum: bool = False):
         if scan_provider is not None and not callable(scan_provider):
             raise ValueError(f"scan_provider must be callable, got {scan_provider!r}")
-        for name, value in (("timestamp_offset_s", timestamp_offset_s), ("latency_s", latency_s)):
+        for name, value in (("timestamp_offset_s", timestamp_offset_s), ("latency_s", latency_s),
+                            ("clock_drift_ppm", clock_drift_ppm)):
             if not (isinstance(value, (int, float)) and math.isfinite(value)):
                 raise ValueError(f"{name} must be a finite number, got {value!r}")
         if latency_s < 0:
@@ -220,6 +165,7 @@ class UrgEmulator:
         self.clock = clock if clock is not None else RealTimeClock()
         self.timestamp_offset_s = float(timestamp_offset_s)
         self.latency_s = float(latency_s)
+        self.clock_drift_ppm = float(clock_drift_ppm)
         self.model, self.serial, self.firmware = model, serial, firmware
         self.semicolon_in_checksum = semicolon_in_checksum
         self.scip2 = not start_in_scip11
@@ -331,7 +277,8 @@ class UrgEmulator:
     def sensor_ms(self, t_s: float) -> int:
         """The sensor timer's reading at clock time ``t_s``: ms mod 2^24."""
         # Rounded to ns first: (t + offset) * 1000 of a whole ms must not floor to the ms before.
-        return math.floor(round((t_s + self.timestamp_offset_s) * 1000.0, 6)) % p.TIMESTAMP_MODULUS_MS
+        sensor_s = t_s * (1.0 + 1e-6 * self.clock_drift_ppm) + self.timestamp_offset_s
+        return math.floor(round(sensor_s * 1000.0, 6)) % p.TIMESTAMP_MODULUS_MS
 
     # --- the loop -------------------------------------------------------------------
 
@@ -512,7 +459,7 @@ class UrgEmulator:
         if params:
             return t_s, self._reply(line, "0C")
         self._qt(line, "QT", "", tag, t_s)
-        self.timestamp_offset_s = -t_s  # RS resets the sensor's timer ([SCIP] 8.5)
+        self.timestamp_offset_s = -t_s * (1.0 + 1e-6 * self.clock_drift_ppm)  # RS resets the timer ([SCIP] 8.5)
         return t_s, self._reply(line, "00")
 
     def _tm(self, line, symbol, params, tag, t_s):
@@ -622,7 +569,7 @@ class UrgEmulator:
         raw = p.raw_from_ranges(ranges_m, beam_status, n_chars=n_chars)[start:end + 1]
         if cluster > 1:
             raw = np.array([_cluster_value(raw[i:i + cluster]) for i in range(0, len(raw), cluster)])
-        data = "".join(p.encode(int(v), n_chars) for v in raw)
+        data = p.encode_array(raw, n_chars)
         lines = [self._line(p.encode(self.sensor_ms(t_scan_s), 4))] + self._data(data)
         return self._reply(echo, status, lines)
 

@@ -64,6 +64,20 @@ def encode(value: int, n_chars: int) -> str:
     return "".join(chr(0x30 + ((value >> (6 * (n_chars - 1 - i))) & 0x3F)) for i in range(n_chars))
 
 
+def encode_array(values: np.ndarray, n_chars: int) -> str:
+    """Many values as one run of ``n_chars``-character groups (as :func:`encode`, vectorised).
+
+    Raises:
+        ValueError: a value is negative or does not fit in ``6 * n_chars`` bits.
+    """
+    values = np.asarray(values, dtype=np.int64)
+    if values.size and (values.min() < 0 or values.max() >= 1 << (6 * n_chars)):
+        raise ValueError(f"values must be in [0, {(1 << 6 * n_chars) - 1}] for a {n_chars}-character encoding")
+    shifts = 6 * np.arange(n_chars - 1, -1, -1, dtype=np.int64)
+    groups = ((values[:, None] >> shifts) & 0x3F) + 0x30
+    return groups.astype(np.uint8).tobytes().decode("ascii")
+
+
 def decode(chars: str) -> int:
     """The number encoded by SCIP characters (any count).
 
