@@ -97,6 +97,16 @@ _LAZY = {
     "StopAction": "plantsim.hardware.safety",
     "SafeStopReport": "plantsim.hardware.safety",
     "ServoStatus": "plantsim.hardware.dynamixel.turntable",
+    "render_scene": "plantsim.cloud.render",
+    "render_cloud": "plantsim.cloud.render",
+    "error_picture": "plantsim.cloud.render",
+    "View": "plantsim.cloud.render",
+    "RenderError": "plantsim.cloud.render",
+    "dask_executor": "plantsim.evaluation.study",
+    "SettingTypeError": "plantsim.validation",
+    "MissingExtraError": "plantsim.validation",
+    "UrgLidar": "plantsim.hardware.urg",
+    "UrgEmulator": "plantsim.hardware.urg",
 }
 
 __all__ = [
@@ -112,6 +122,10 @@ __all__ = [
     # the raw record and the cloud
     "RawScan", "BeamGrid", "ANGLE_MODES", "read_raw", "write_raw", "reconstruct", "PointCloud", "read_cloud",
     "write_cloud", "EXPORTERS", "CLASSIFICATION",
+    # pictures
+    "render_scene", "render_cloud", "error_picture", "View", "RenderError",
+    # the real LiDAR
+    "UrgLidar", "UrgEmulator",
     # calibration and the sensor fit
     "calibrate", "Calibration", "CalibrationTarget", "CALIBRATION_TARGET", "fit_sensor", "FlatTargetRecording",
     "SensorFit", "FlatTarget", "simulate_flat_target",
@@ -120,7 +134,8 @@ __all__ = [
     "PART_EAR",
     # evaluation
     "Evaluation", "EvaluationOptions", "evaluate_scan", "cloud_mesh_metrics", "extract_traits",
-    "traits_from_mesh", "Sweep", "run_study", "pareto_front",
+    "traits_from_mesh", "Sweep", "run_study", "pareto_front", "dask_executor", "SettingTypeError",
+    "MissingExtraError",
     # transforms
     "make_T", "invert_T", "apply_T",
     # errors

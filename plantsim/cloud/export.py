@@ -15,9 +15,11 @@ columns without a header (Open3D reads x y z from it); PTS is a point count and
 ``x y z intensity`` (Open3D and CloudCompare read both).
 
 Exporters take a :class:`PointCloud` and return bytes (they never touch the
-disk); :func:`write_cloud` is the only writer and writes atomically (a temp
-file in the same folder, then ``os.replace``), so a failure leaves no
-half-written file. Readers give a :class:`PointCloud` back, for round trips and
+disk); :func:`write_cloud` writes a cloud and its sidecar as a unit through
+:class:`plantsim.cloud.outputs.OutputSet`, the writer every output goes
+through (``plantsim.scan.pipeline.write_result`` adds the raw bag to the same
+set), so a failure leaves no half-written file and no new cloud beside an old
+sidecar. Readers give a :class:`PointCloud` back, for round trips and
 for evaluating clouds made elsewhere.
 
 Every format carries the same per-point fields: x, y, z (turntable frame,
@@ -462,17 +464,24 @@ def encode_cloud(path: str | os.PathLike, cloud: PointCloud, *, xyz_double: bool
 
 def write_cloud(path: str | os.PathLike, cloud: PointCloud, *, sidecar: dict | None = None,
                 xyz_double: bool = False) -> None:
-    """Writes a cloud (and, if given, its sidecar ``<path>.json``), atomically.
+    """Writes a cloud (and, if given, its sidecar ``<path>.json``) as a unit.
 
-    The cloud is encoded fully in memory before anything touches the disk.
-    ``xyz_double`` asks for float64 PLY coordinates (default float32).
+    The cloud is encoded fully in memory before anything touches the disk; the
+    files are then written and swapped in together by
+    :class:`plantsim.cloud.outputs.OutputSet` (the one writer: a failure or Ctrl-C
+    leaves the earlier files as they were). ``xyz_double`` asks for float64 PLY
+    coordinates (default float32).
     """
+    from plantsim.cloud.outputs import OutputSet
+
     path = check_output_path(path)
     data = encode_cloud(path, cloud, xyz_double=xyz_double)
-    if sidecar is not None:
-        text = json.dumps(sidecar, indent=2, sort_keys=False, default=_json_default) + "\n"
-        write_atomic(sidecar_path(path), text.encode("utf-8"))
-    write_atomic(path, data)
+    with OutputSet() as outputs:
+        outputs.stage_bytes(path, data)
+        if sidecar is not None:
+            text = json.dumps(sidecar, indent=2, sort_keys=False, default=_json_default) + "\n"
+            outputs.stage_bytes(sidecar_path(path), text.encode("utf-8"))
+        outputs.commit()
 
 
 def sidecar_path(path: str | os.PathLike) -> Path:
