@@ -283,3 +283,12 @@ def test_s1_end_to_end_the_continuous_scan_cloud_is_right():
     # The encoder does not see the play: up to half of it (0.5 deg at <= 60 mm) remains.
     assert np.percentile(distance, 99) < 1e-3
     assert result.diagnostics["max_table_minus_shaft_rad"] <= math.radians(0.5) + dyn.max_play_excess_rad
+
+
+def test_a_mujoco_warning_stops_the_run():
+    sim = sim_for(TurntableDynamics())
+    sim.command(1.0)
+    sim.advance(200)
+    sim.data.qvel[:] = 1e12  # MuJoCo resets a huge velocity and warns
+    with pytest.raises(SimulationError, match=r"mjWARN_BADQVEL"):
+        sim.advance(500)
