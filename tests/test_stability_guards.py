@@ -257,3 +257,38 @@ def test_f1_the_controller_can_act_on_whole_encoder_ticks():
     assert np.abs(finals[4096]).max() < 1.0 * units.RAD_PER_TICK
     with pytest.raises(ValueError, match="controller_ticks_per_rev must be an integer >= 2"):
         TurntableDynamics(controller_ticks_per_rev=1)
+
+
+def test_s1_end_to_end_the_continuous_scan_cloud_is_right():
+    """The issue's S1 scan: 2 rpm, armature 0, 1-degree backlash (was a 59 mm p99 error)."""
+    import trimesh
+
+    from plantsim.cloud.reconstruct import reconstruct
+    from plantsim.plant.mesh import plant_from_arrays
+    from plantsim.scan.config import RunConfig
+    from plantsim.scan.pipeline import run_scan
+    from plantsim.turntable.options import TurntableOptions
+
+    centre, half = np.array([0.05, 0.02, 0.05]), np.array([0.02, 0.03, 0.05])
+    box = trimesh.creation.box(extents=2 * half)
+    box.apply_translation(centre)
+    plant = plant_from_arrays(np.asarray(box.vertices), np.asarray(box.faces), placement="none")
+    dyn = TurntableDynamics(servo=dataclasses.replace(DEFAULT_SERVO, armature=0.0),
+                            jitter=JitterConfig(backlash_deg=1.0))
+    result = run_scan(RunConfig(sensor="ideal", turntable=TurntableOptions(
+        mode="continuous", rpm=2, physics="dynamic", dynamics=dyn)), plant=plant)
+    points = reconstruct(result.raw).plant_only().points_turntable
+    d = np.abs(points - centre) - half
+    distance = np.linalg.norm(np.maximum(d, 0), axis=1) + np.abs(np.minimum(d.max(axis=1), 0))
+    # The encoder does not see the play: up to half of it (0.5 deg at <= 60 mm) remains.
+    assert np.percentile(distance, 99) < 1e-3
+    assert result.diagnostics["max_table_minus_shaft_rad"] <= math.radians(0.5) + dyn.max_play_excess_rad
+
+
+def test_a_mujoco_warning_stops_the_run():
+    sim = sim_for(TurntableDynamics())
+    sim.command(1.0)
+    sim.advance(200)
+    sim.data.qvel[:] = 1e12  # MuJoCo resets a huge velocity and warns
+    with pytest.raises(SimulationError, match=r"mjWARN_BADQVEL"):
+        sim.advance(500)

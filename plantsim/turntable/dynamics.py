@@ -763,9 +763,17 @@ class TurntableSim:
         if why:
             i = int(np.argmax(np.abs(rec[:, _REC_SHAFT_V])))
             bad.append((i, f"{why} (the shaft reached this speed at t = {rec[i, _REC_T]:.6g} s)"))
+        # MuJoCo's own warnings (e.g. a huge velocity it reset) are known per chunk only:
+        # a step-level cause above, when there is one, is reported first.
+        warned = [mujoco.mjtWarning(i).name for i, w in enumerate(self.data.warning) if w.number]
         if bad:
             i, message = min(bad, key=lambda b: b[0])
-            raise SimulationError(f"{message} [physics step {self.steps - len(rec) + 1 + i:,}]")
+            raise SimulationError(f"{message} [physics step {self.steps - len(rec) + 1 + i:,}]"
+                                  + (f" (MuJoCo also warned: {', '.join(warned)})" if warned else ""))
+        if warned:
+            raise SimulationError(
+                f"MuJoCo warned during the turntable simulation in the chunk ending at t = "
+                f"{rec[-1, _REC_T]:.6g} s ({', '.join(warned)}); {fix_dt}")
 
     def _oscillation(self, rec: np.ndarray) -> int | None:
         """Index of the step that completes a sustained oscillation, or None."""
