@@ -105,6 +105,8 @@ _LAZY = {
     "dask_executor": "plantsim.evaluation.study",
     "SettingTypeError": "plantsim.validation",
     "MissingExtraError": "plantsim.validation",
+    "DynamicsDiagnostics": "plantsim.turntable.dynamics",
+    "angle_error_displacement": "plantsim.evaluation.angle_error",
     "UrgLidar": "plantsim.hardware.urg",
     "UrgEmulator": "plantsim.hardware.urg",
 }
@@ -122,6 +124,8 @@ __all__ = [
     # the raw record and the cloud
     "RawScan", "BeamGrid", "ANGLE_MODES", "read_raw", "write_raw", "reconstruct", "PointCloud", "read_cloud",
     "write_cloud", "EXPORTERS", "CLASSIFICATION",
+    # what the turntable did
+    "DynamicsDiagnostics", "angle_error_displacement",
     # pictures
     "render_scene", "render_cloud", "error_picture", "View", "RenderError",
     # the real LiDAR

@@ -216,8 +216,10 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
         t = time.perf_counter()
         raw = simulate_lines(source, record, grid, plan.angle_mode, rng, progress=progress,
                              encoder_offset_rad=math.radians(config.rig.encoder_offset_deg))
-        diagnostics = motions.physics_diagnostics(record, raw.time_s, raw.true_turntable_angle_rad,
-                                                  raw.turntable_angle_rad)
+        diagnostics = motions.physics_diagnostics(
+            record, raw.time_s, raw.true_turntable_angle_rad, raw.turntable_angle_rad,
+            settle_tolerance_rad=plan.dynamics.settle_tolerance_rad if plan.dynamics is not None else None)
+        diagnostics["angle_error_plant"] = angle_error_metric(raw)
     else:
         from plantsim.cloud.export import check_output_path
         from plantsim.scan.session import run_session
@@ -302,6 +304,22 @@ def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, model:
     record = motions.kinematic_step(schedule.angles_rad(), schedule.step_time_s, timing, EncoderConfig.ideal(),
                                     rng)
     return simulate_lines(source, record, grid, "interpolate", rng, progress=progress)
+
+
+def angle_error_metric(raw: RawScan) -> dict:
+    """How far the plant's points moved because the rig believed other angles than the true ones.
+
+    The reconstruction with the true turntable angles against the one with the
+    believed angles, point by point (issue 14: point-to-mesh distance understates
+    angle errors, as points slide along leaves). Empty when there is no ground truth.
+    """
+    if raw.true_turntable_angle_rad is None:
+        return {}
+    from plantsim.evaluation.angle_error import angle_error_displacement
+
+    valid = (raw.status == 0) & (raw.hit_class == 1)  # BeamStatus.OK on HitClass.PLANT
+    return angle_error_displacement(raw.range_m, raw.beam_angle_rad, raw.T_base_lidar, raw.true_turntable_angle_rad,
+                                    raw.turntable_angle_rad, valid=valid)
 
 
 def _check_types(config, plant, turntable) -> None:

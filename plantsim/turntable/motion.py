@@ -232,20 +232,22 @@ def physics_continuous(dscene: DynamicScene, rpm: float, sweep_deg: float, timin
 
 
 def physics_diagnostics(record: MotionRecord, beam_time_s: np.ndarray,
-                        true_rad: np.ndarray, believed_rad: np.ndarray) -> dict:
-    """What the turntable did, for the sidecar: tracking, backlash and angle errors.
+                        true_rad: np.ndarray, believed_rad: np.ndarray, *,
+                        settle_tolerance_rad: float | None = None) -> dict:
+    """What the turntable did, for the sidecar and study rows: tracking, backlash, angle errors.
 
     Args:
       record: a motion record.
       beam_time_s, true_rad, believed_rad: (n_lines, n_beams) per-beam times,
         true angles and the angles the reconstruction used.
+      settle_tolerance_rad: the step scans' settling tolerance (for the settle times).
     """
-    out = {"max_believed_minus_true_rad": float(np.max(np.abs(believed_rad - true_rad)))
-           if np.size(true_rad) else 0.0}
-    tr = record.trajectory
-    if tr is not None:
-        out["max_tracking_error_rad"] = float(np.max(np.abs(tr.shaft_rad - tr.setpoint_rad)))
-        out["max_table_minus_shaft_rad"] = float(np.max(np.abs(tr.table_rad - tr.shaft_rad)))
-        out["physics_steps"] = int(len(tr.time_s) - 1)
-        out["simulated_time_s"] = float(tr.time_s[-1])
+    out = {"motion": record.kind,
+           "max_believed_minus_true_rad": float(np.max(np.abs(believed_rad - true_rad))) if np.size(true_rad) else 0.0}
+    if record.trajectory is not None:
+        from plantsim.turntable.dynamics import DynamicsDiagnostics
+
+        options = {} if settle_tolerance_rad is None else {"settle_tolerance_rad": settle_tolerance_rad}
+        out.update(DynamicsDiagnostics.from_trajectory(record.trajectory, true_rad=true_rad,
+                                                       believed_rad=believed_rad, **options).to_dict())
     return out

@@ -56,10 +56,11 @@ class TurntableOptions:
         if (isinstance(self.rpm, bool) or not isinstance(self.rpm, (int, float))
                 or not math.isfinite(self.rpm) or self.rpm <= 0):
             raise ValueError(f"turntable rpm must be a positive number, got {self.rpm!r}")
-        top_rpm = self.dynamics.servo.no_load_speed * 60 / (2 * math.pi)
+        top_rpm = self.dynamics.servo.top_speed_rad_s() * 60 / (2 * math.pi)
         if self.rpm > top_rpm:
-            raise ValueError(f"turntable rpm ({self.rpm:g}) exceeds the servo's no-load speed "
-                             f"({top_rpm:.3g} rpm); choose rpm <= {top_rpm:.3g} or a faster servo")
+            raise ValueError(f"turntable rpm ({self.rpm:g}) exceeds the servo's no-load speed in this model "
+                             f"({top_rpm:.3g} rpm at full duty, less the gearbox's friction); choose rpm <= "
+                             f"{0.99 * top_rpm:.3g} or a faster servo")
 
     def replace(self, **changes) -> "TurntableOptions":
         return dataclasses.replace(self, **changes)
