@@ -29,7 +29,7 @@ def cloud():
     return c
 
 
-TOLERANCE_M = {".las": 5e-6, ".ply": 0.0, ".pcd": 1e-7, ".txt": 1e-9, ".xyz": 1e-9}
+TOLERANCE_M = {".las": 5e-6, ".laz": 5e-6, ".ply": 1e-7, ".pcd": 1e-7, ".txt": 1e-9, ".xyz": 1e-9}
 
 
 @pytest.mark.parametrize("suffix", list(pio.EXPORTERS))
@@ -70,7 +70,7 @@ def test_write_is_atomic_and_leaves_nothing_on_failure(tmp_path, cloud, monkeypa
     assert json.loads((tmp_path / "scan.ply.json").read_text()) == {"a": 1}
     before = out.read_bytes()
 
-    def boom(_cloud):
+    def boom(_cloud, **_options):
         raise OverflowError("coordinate does not fit")
 
     monkeypatch.setitem(pio.EXPORTERS, ".ply", boom)
@@ -81,7 +81,7 @@ def test_write_is_atomic_and_leaves_nothing_on_failure(tmp_path, cloud, monkeypa
 
 
 def test_output_path_checks(tmp_path):
-    with pytest.raises(ValueError, match="use one of .las, .ply, .pcd, .txt, .xyz"):
+    with pytest.raises(ValueError, match="use one of .las, .laz, .ply, .pcd, .txt, .xyz"):
         pio.check_output_path(tmp_path / "scan.e57")
     with pytest.raises(FileNotFoundError, match="output folder does not exist"):
         pio.check_output_path(tmp_path / "nope" / "scan.las")

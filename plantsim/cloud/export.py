@@ -1,4 +1,4 @@
-"""Point-cloud files: LAS 1.4, PLY, PCD and TXT/XYZ, chosen by extension.
+"""Point-cloud files: LAS 1.4 / LAZ, PLY, PCD and TXT/XYZ, chosen by extension.
 
 Exporters take a :class:`PointCloud` and return bytes (they never touch the
 disk); :func:`write_cloud` is the only writer and writes atomically (a temp
@@ -9,7 +9,21 @@ for evaluating clouds made elsewhere.
 Every format carries the same per-point fields: x, y, z (turntable frame,
 metres), classification (what the beam hit; :data:`CLASSIFICATION`), intensity,
 beam_index, scan_index, turntable_angle_rad, range_m and time (the beam's time
-in seconds; LAS GPS time).
+in seconds; LAS GPS time). Each format names and types them the way the tools
+that read it expect (checked against Open3D, PCL and CloudCompare's readers):
+
+- LAS/LAZ: point format 6, intensity uint16 (0..65535 for 0..1), the rest as
+  extra bytes; one return per pulse (return number = number of returns = 1),
+  the WKT global-encoding bit set (LAS 1.4 R15 requires it for formats 6-10).
+- PLY: x y z float32 (``precision="double"`` for float64), ``intensity``
+  float32, the other fields prefixed ``scalar_`` (CloudCompare loads every
+  ``scalar_*`` property as a scalar field without asking, and strips the
+  prefix) in types Open3D's tensor reader keeps (uint8, uint16, int32, float64).
+- PCD: x y z float32 (PCL's ``PointXYZ``), ``intensity`` float32
+  (``PointXYZI``), the class code as uint32 ``label`` (``PointXYZL``).
+- TXT: a ``//`` header line CloudCompare reads (``intensity`` and ``scalar_*``
+  columns become scalar fields). XYZ: the same columns with no header line, so
+  Open3D (which reads the first three columns) accepts it.
 """
 
 from __future__ import annotations
@@ -33,28 +47,36 @@ _CLASS_OF_CODE = {code: cls for cls, code in CLASSIFICATION.items()}
 
 # LAS coordinate resolution: 0.01 mm, ten times finer than the 0.1 mm asked for.
 LAS_SCALE_M = 1e-5
+# LAS 1.4 R15 table 16: point formats 6-10 store the scan angle as int16 in 0.006 degree steps.
+LAS_SCAN_ANGLE_STEP_DEG = 0.006
 
-# Name, numpy dtype, PCD type/size letter: the scalar fields after x, y, z.
+PRECISIONS = ("single", "double")
+
+# The scalar fields after x, y, z, in file order: plantsim's name and the numpy
+# dtype a lossless column needs. Formats rename or retype them below.
 _FIELDS = (
-    ("classification", np.uint8, "U"),
-    ("intensity", np.uint16, "U"),
-    ("beam_index", np.uint16, "U"),
-    ("scan_index", np.uint32, "U"),
-    ("turntable_angle_rad", np.float64, "F"),
-    ("range_m", np.float64, "F"),
-    ("time", np.float64, "F"),
+    ("intensity", np.float32),
+    ("classification", np.uint8),
+    ("beam_index", np.uint16),
+    ("scan_index", np.uint32),
+    ("turntable_angle_rad", np.float64),
+    ("range_m", np.float64),
+    ("time", np.float64),
 )
+_FIELD_NAMES = tuple(name for name, _ in _FIELDS)
 
 
 def _columns(cloud: PointCloud) -> dict[str, np.ndarray]:
+    """plantsim's per-point fields as columns (``_FIELDS`` order and dtypes)."""
     codes = np.zeros(256, dtype=np.uint8)
     for cls, code in CLASSIFICATION.items():
         codes[int(cls)] = code
-    intensity = (np.zeros(len(cloud), np.uint16) if cloud.intensity is None
-                 else np.round(np.clip(cloud.intensity, 0.0, 1.0) * 65535).astype(np.uint16))
+    n = len(cloud)
+    intensity = (np.zeros(n, np.float32) if cloud.intensity is None
+                 else np.clip(np.asarray(cloud.intensity, dtype=np.float32), 0.0, 1.0))
     return {
-        "classification": codes[cloud.hit_class],
         "intensity": intensity,
+        "classification": codes[cloud.hit_class],
         "beam_index": cloud.beam_index.astype(np.uint16),
         "scan_index": cloud.scan_index.astype(np.uint32),
         "turntable_angle_rad": cloud.turntable_angle_rad.astype(np.float64),
@@ -63,24 +85,83 @@ def _columns(cloud: PointCloud) -> dict[str, np.ndarray]:
     }
 
 
+# Names other tools (and plantsim's older files) use for plantsim's fields.
+_ALIASES = {"label": "classification", "gps_time": "time", "scalar_intensity": "intensity"}
+
+
+def _canonical(name: str) -> str:
+    name = _ALIASES.get(name, name)
+    if name.startswith("scalar_") and name[len("scalar_"):] in _FIELD_NAMES:
+        return name[len("scalar_"):]
+    return name
+
+
 def _cloud_from_columns(xyz: np.ndarray, cols: dict[str, np.ndarray]) -> PointCloud:
-    classification = np.asarray(cols["classification"], dtype=np.int64)
-    hit_class = np.array([_CLASS_OF_CODE.get(int(c), HitClass.NONE) for c in range(256)],
-                         dtype=np.uint8)[classification]
-    intensity = np.asarray(cols["intensity"], dtype=np.float64)
+    """A cloud from x y z and whatever of plantsim's fields a file had (by canonical name).
+
+    Intensity stored as floats is taken as is (0..1); stored as integers (LAS,
+    plantsim's files before 0.3) it is scaled from 0..65535. All-zero intensity
+    means "not modelled" (None).
+    """
+    n = len(xyz)
+    cols = {_canonical(k): v for k, v in cols.items()}
+    get = lambda name, dtype: (np.asarray(cols[name]) if name in cols  # noqa: E731
+                               else np.zeros(n, dtype))
+    classification = get("classification", np.uint8).astype(np.int64)
+    hit_class = np.array([_CLASS_OF_CODE.get(c, HitClass.NONE) for c in range(256)],
+                         dtype=np.uint8)[np.clip(classification, 0, 255)]
+    raw = get("intensity", np.float32)
+    intensity = (raw.astype(np.float64) / 65535 if raw.dtype.kind in "ui"
+                 else raw.astype(np.float64))
     return PointCloud(
         points_turntable=np.ascontiguousarray(xyz, dtype=np.float64),
         hit_class=hit_class,
-        beam_index=np.asarray(cols["beam_index"]).astype(np.uint16),
-        scan_index=np.asarray(cols["scan_index"]).astype(np.uint32),
-        turntable_angle_rad=np.asarray(cols["turntable_angle_rad"], dtype=np.float64),
-        range_m=np.asarray(cols["range_m"], dtype=np.float64),
-        time_s=np.asarray(cols["time"], dtype=np.float64),
-        intensity=(intensity / 65535).astype(np.float32) if intensity.any() else None,
+        beam_index=get("beam_index", np.uint16).astype(np.uint16),
+        scan_index=get("scan_index", np.uint32).astype(np.uint32),
+        turntable_angle_rad=get("turntable_angle_rad", np.float64).astype(np.float64),
+        range_m=get("range_m", np.float64).astype(np.float64),
+        time_s=get("time", np.float64).astype(np.float64),
+        intensity=intensity.astype(np.float32) if intensity.any() else None,
     )
 
 
-# --- LAS 1.4 (laspy) -------------------------------------------------------
+def _check_precision(precision: str) -> np.dtype:
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    return np.dtype(np.float32 if precision == "single" else np.float64)
+
+
+def _rows(cloud: PointCloud, layout: tuple[tuple[str, str, np.dtype], ...],
+          xyz_dtype: np.dtype) -> np.ndarray:
+    """A little-endian structured array: x y z, then ``layout``'s (file name, plantsim name, dtype)."""
+    dtype = np.dtype([(a, xyz_dtype) for a in "xyz"] + [(f, t) for f, _, t in layout])
+    rows = np.empty(len(cloud), dtype=dtype.newbyteorder("<"))
+    for i, axis in enumerate("xyz"):
+        rows[axis] = cloud.points_turntable[:, i]
+    cols = _columns(cloud)
+    for file_name, name, t in layout:
+        values = cols[name]
+        if np.dtype(t).kind in "ui" and len(values) and values.max() > np.iinfo(t).max:
+            raise OverflowError(f"{name} reaches {values.max()}, more than the file's "
+                                f"{np.dtype(t).name} column {file_name!r} holds")
+        rows[file_name] = values
+    return rows
+
+
+def _xyz_from_rows(rows: np.ndarray) -> np.ndarray:
+    names = rows.dtype.names
+    missing = [a for a in "xyz" if a not in names]
+    if missing:
+        raise ValueError(f"the file has no {', '.join(missing)} field; found {', '.join(names)}")
+    return np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
+
+
+def _from_rows(rows: np.ndarray) -> PointCloud:
+    return _cloud_from_columns(_xyz_from_rows(rows),
+                               {n: rows[n] for n in rows.dtype.names if n not in "xyz"})
+
+
+# --- LAS 1.4 / LAZ (laspy; LAZ through lazrs) ---------------------------------
 
 _LAS_EXTRA = (("beam_index", np.uint16, "beam within its scan line"),
               ("scan_index", np.uint32, "scan line (turntable step)"),
@@ -88,15 +169,31 @@ _LAS_EXTRA = (("beam_index", np.uint16, "beam within its scan line"),
               ("range_m", np.float64, "measured range, metres"))
 
 
-def to_las(cloud: PointCloud) -> bytes:
-    """LAS 1.4, point format 6; GPS time is the beam's time (s since the scan's start).
+def to_las(cloud: PointCloud, *, beam_angle_rad: np.ndarray | None = None,
+           compress: bool = False) -> bytes:
+    """LAS 1.4, point format 6 (or LAZ when ``compress``); GPS time is the beam's time.
+
+    Per point: return number = number of returns = 1 (the sensor reports one
+    echo per beam); scan angle = the beam's angle in the LiDAR's scan plane
+    (0.006 degree steps) when ``beam_angle_rad`` is given, else 0; point source
+    ID 0 (one scanner, one file; the scan line is the ``scan_index`` extra
+    dimension, which holds all 32 bits). The WKT global-encoding bit is set, as
+    LAS 1.4 R15 requires for point formats 6-10 (no CRS: the turntable frame is local).
+
+    Args:
+      cloud: the points.
+      beam_angle_rad: (n,) float64 radians, lidar frame, one per point (e.g.
+        ``spec.beam_angles_rad()[cloud.beam_index]``), or None.
+      compress: write LAZ (laspy's lazrs backend) instead of LAS.
 
     Raises:
       OverflowError: a coordinate does not fit the 0.01 mm grid (laspy's own check).
+      ValueError: ``beam_angle_rad`` has the wrong shape or leaves -196.6..196.6 degrees.
     """
     import laspy
 
     header = laspy.LasHeader(point_format=6, version="1.4")
+    header.global_encoding.wkt = True
     header.scales = np.full(3, LAS_SCALE_M)
     xyz = cloud.points_turntable
     header.offsets = np.floor(xyz.min(axis=0)) if len(xyz) else np.zeros(3)
@@ -107,57 +204,91 @@ def to_las(cloud: PointCloud) -> bytes:
     las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     cols = _columns(cloud)
     las.classification = cols["classification"]
-    las.intensity = cols["intensity"]
+    las.intensity = np.round(cols["intensity"].astype(np.float64) * 65535).astype(np.uint16)
     las.gps_time = cols["time"]
+    las.return_number = np.ones(len(cloud), np.uint8)
+    las.number_of_returns = np.ones(len(cloud), np.uint8)
+    if beam_angle_rad is not None:
+        las.scan_angle = _las_scan_angle(beam_angle_rad, len(cloud))
     for name, _, _ in _LAS_EXTRA:
         las[name] = cols[name]
     buffer = io.BytesIO()
-    las.write(buffer)
+    if compress:
+        las.write(buffer, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
+    else:
+        las.write(buffer, do_compress=False)
     return buffer.getvalue()
 
 
+def _las_scan_angle(beam_angle_rad: np.ndarray, n: int) -> np.ndarray:
+    angle = np.asarray(beam_angle_rad, dtype=np.float64)
+    if angle.shape != (n,):
+        raise ValueError(f"beam_angle_rad must have shape ({n},), one per point, got {angle.shape}")
+    steps = np.round(np.rad2deg(angle) / LAS_SCAN_ANGLE_STEP_DEG)
+    limit = np.iinfo(np.int16).max
+    if n and np.abs(steps).max() > limit:
+        raise ValueError(f"beam_angle_rad must lie within +-{limit * LAS_SCAN_ANGLE_STEP_DEG:.1f} "
+                         f"degrees (LAS scan angle), got {np.rad2deg(np.abs(angle).max()):.1f}")
+    return steps.astype(np.int16)
+
+
+def to_laz(cloud: PointCloud, *, beam_angle_rad: np.ndarray | None = None) -> bytes:
+    """LAZ: :func:`to_las` compressed with lazrs (lossless, about a third of the size)."""
+    return to_las(cloud, beam_angle_rad=beam_angle_rad, compress=True)
+
+
 def from_las(data: bytes) -> PointCloud:
+    """Reads LAS or LAZ (laspy; LAZ needs lazrs)."""
     import laspy
 
     las = laspy.read(io.BytesIO(data))
     xyz = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1)
     names = set(las.point_format.dimension_names)
-    n = len(xyz)
-    cols = {
-        "classification": np.asarray(las.classification),
-        "intensity": np.asarray(las.intensity),
-        "time": np.asarray(las.gps_time) if "gps_time" in names else np.zeros(n),
-    }
-    for name, dtype, _ in _LAS_EXTRA:
-        cols[name] = np.asarray(las[name]) if name in names else np.zeros(n, dtype)
+    cols = {"classification": np.asarray(las.classification),
+            "intensity": np.asarray(las.intensity)}
+    if "gps_time" in names:
+        cols["time"] = np.asarray(las.gps_time)
+    for name, _, _ in _LAS_EXTRA:
+        if name in names:
+            cols[name] = np.asarray(las[name])
     return _cloud_from_columns(xyz, cols)
 
 
 # --- PLY (binary little endian) --------------------------------------------
 
-_PLY_TYPES = {np.uint8: "uchar", np.uint16: "ushort", np.uint32: "uint", np.float64: "double"}
+# Sized PLY type names: Open3D's tensor reader keeps uint16 but skips "ushort",
+# "short", "char" and any uint32, so scan_index is int32 (2**31 scan lines is plenty).
+_PLY_TYPE = {"u1": "uint8", "<u2": "uint16", "<i4": "int32", "<f4": "float32", "<f8": "float64"}
+_PLY_LAYOUT = (
+    ("intensity", "intensity", np.dtype("<f4")),
+    ("scalar_classification", "classification", np.dtype("u1")),
+    ("scalar_beam_index", "beam_index", np.dtype("<u2")),
+    ("scalar_scan_index", "scan_index", np.dtype("<i4")),
+    ("scalar_turntable_angle_rad", "turntable_angle_rad", np.dtype("<f8")),
+    ("scalar_range_m", "range_m", np.dtype("<f8")),
+    ("scalar_time", "time", np.dtype("<f8")),
+)
 
 
-def _structured(cloud: PointCloud, xyz_dtype) -> np.ndarray:
-    dtype = [("x", xyz_dtype), ("y", xyz_dtype), ("z", xyz_dtype)] + [
-        (name, t) for name, t, _ in _FIELDS]
-    rows = np.empty(len(cloud), dtype=np.dtype(dtype).newbyteorder("<"))
-    for i, axis in enumerate("xyz"):
-        rows[axis] = cloud.points_turntable[:, i]
-    for name, values in _columns(cloud).items():
-        rows[name] = values
-    return rows
+def to_ply(cloud: PointCloud, *, precision: str = "single") -> bytes:
+    """Binary little-endian PLY.
 
+    Args:
+      cloud: the points.
+      precision: "single" (float32 x y z, 0.06 um steps at 1 m; what PCL's
+        ``PointXYZ`` and most viewers expect) or "double" (float64).
 
-def to_ply(cloud: PointCloud) -> bytes:
-    """Binary PLY with double-precision coordinates and the scalar fields."""
-    props = "".join(f"property {_PLY_TYPES[t]} {name}\n"
-                    for name, t in [("x", np.float64), ("y", np.float64), ("z", np.float64)]
-                    + [(n, t) for n, t, _ in _FIELDS])
+    Raises:
+      ValueError: unknown ``precision``.
+      OverflowError: a scan_index beyond int32.
+    """
+    rows = _rows(cloud, _PLY_LAYOUT, _check_precision(precision))
+    props = "".join(f"property {_PLY_TYPE[rows.dtype[n].str.replace('|', '')]} {n}\n"
+                    for n in rows.dtype.names)
     header = ("ply\nformat binary_little_endian 1.0\ncomment plantsim point cloud, turntable "
-              "frame, metres\ncomment classification: 4 plant, 64 turntable, 65 rig\n"
+              "frame, metres\ncomment scalar_classification: 4 plant, 64 turntable, 65 rig\n"
               f"element vertex {len(cloud)}\n{props}end_header\n")
-    return header.encode("ascii") + _structured(cloud, np.float64).tobytes()
+    return header.encode("ascii") + rows.tobytes()
 
 
 _PLY_NP = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4",
@@ -182,27 +313,40 @@ def from_ply(data: bytes) -> PointCloud:
             if in_vertex:
                 n = int(parts[2])
         elif parts[:1] == ["property"] and in_vertex:
+            if parts[1] == "list":
+                raise ValueError(f"vertex list property {parts[-1]!r} is not supported")
             fields.append((parts[2], _PLY_NP[parts[1]]))
     rows = np.frombuffer(data, dtype=np.dtype(fields), count=n, offset=end + len(b"end_header\n"))
     return _from_rows(rows)
 
 
-def _from_rows(rows: np.ndarray) -> PointCloud:
-    xyz = np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
-    names = rows.dtype.names
-    cols = {name: (rows[name] if name in names else np.zeros(len(rows), t)) for name, t, _ in _FIELDS}
-    return _cloud_from_columns(xyz, cols)
-
-
 # --- PCD v0.7 (binary) -----------------------------------------------------
 
-def to_pcd(cloud: PointCloud) -> bytes:
-    """Binary PCD v0.7. Coordinates are float32 (PCL's PointXYZ; 0.06 um at 1 m)."""
-    rows = _structured(cloud, np.float32)
+_PCD_LAYOUT = (
+    ("intensity", "intensity", np.dtype("<f4")),
+    ("label", "classification", np.dtype("<u4")),
+    ("beam_index", "beam_index", np.dtype("<u2")),
+    ("scan_index", "scan_index", np.dtype("<u4")),
+    ("turntable_angle_rad", "turntable_angle_rad", np.dtype("<f8")),
+    ("range_m", "range_m", np.dtype("<f8")),
+    ("time", "time", np.dtype("<f8")),
+)
+
+
+def to_pcd(cloud: PointCloud, *, precision: str = "single") -> bytes:
+    """Binary PCD v0.7: PCL's typed loaders (PointXYZ, PointXYZI, PointXYZL) read it.
+
+    Args:
+      cloud: the points.
+      precision: "single" (float32 x y z, as PCL's point types hold them) or
+        "double" (float64; only PCL's untyped ``PCLPointCloud2`` keeps them).
+    """
+    rows = _rows(cloud, _PCD_LAYOUT, _check_precision(precision))
     names = rows.dtype.names
     sizes = " ".join(str(rows.dtype[n].itemsize) for n in names)
-    types = " ".join("F" if rows.dtype[n].kind == "f" else "U" for n in names)
-    header = (f"# .PCD v0.7 - plantsim point cloud, turntable frame, metres\nVERSION 0.7\n"
+    types = " ".join({"f": "F", "u": "U", "i": "I"}[rows.dtype[n].kind] for n in names)
+    header = (f"# .PCD v0.7 - plantsim point cloud, turntable frame, metres; "
+              f"label: 4 plant, 64 turntable, 65 rig\nVERSION 0.7\n"
               f"FIELDS {' '.join(names)}\nSIZE {sizes}\nTYPE {types}\n"
               f"COUNT {' '.join('1' for _ in names)}\nWIDTH {len(rows)}\nHEIGHT 1\n"
               f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(rows)}\nDATA binary\n")
@@ -213,7 +357,9 @@ def from_pcd(data: bytes) -> PointCloud:
     """Reads a binary or ASCII PCD v0.7 with at least x y z."""
     header, offset = {}, 0
     while True:
-        end = data.index(b"\n", offset)
+        end = data.find(b"\n", offset)
+        if end < 0:
+            raise ValueError("not a PCD file (no DATA line in the header)")
         line = data[offset:end].decode("ascii", "replace").strip()
         offset = end + 1
         if not line or line.startswith("#"):
@@ -223,12 +369,16 @@ def from_pcd(data: bytes) -> PointCloud:
         if key.upper() == "DATA":
             break
     names, sizes, types = header["FIELDS"], header["SIZE"], header["TYPE"]
-    dtype = np.dtype([(n, f"<{ {'F': 'f', 'U': 'u', 'I': 'i'}[t] }{s}") for n, s, t in zip(names, sizes, types)])
+    counts = header.get("COUNT", ["1"] * len(names))
+    if any(c != "1" for c in counts):
+        raise ValueError(f"PCD fields with COUNT > 1 are not supported (COUNT {' '.join(counts)})")
+    dtype = np.dtype([(n, f"<{ {'F': 'f', 'U': 'u', 'I': 'i'}[t] }{s}")
+                      for n, s, t in zip(names, sizes, types)])
     n = int(header["POINTS"][0])
     if header["DATA"][0] == "binary":
         rows = np.frombuffer(data, dtype=dtype, count=n, offset=offset)
     elif header["DATA"][0] == "ascii":
-        table = np.loadtxt(io.BytesIO(data[offset:]), ndmin=2)
+        table = np.loadtxt(io.BytesIO(data[offset:]), ndmin=2, dtype=np.float64)
         rows = np.empty(len(table), dtype=dtype)
         for i, name in enumerate(names):
             rows[name] = table[:, i]
@@ -237,34 +387,82 @@ def from_pcd(data: bytes) -> PointCloud:
     return _from_rows(rows)
 
 
-# --- TXT / XYZ (ASCII columns, CloudCompare-style header) ------------------
+# --- TXT (CloudCompare header) / XYZ (no header; Open3D) ------------------
+
+# Column names CloudCompare's ASCII reader maps by itself: x y z as coordinates,
+# "intensity" and anything containing "scalar" as scalar fields. Without them it
+# guesses small integer columns to be RGB.
+_TXT_NAMES = ("x", "y", "z") + tuple(
+    n if n == "intensity" else f"scalar_{n}" for n in _FIELD_NAMES)
+_TXT_FORMATS = {"intensity": "%.9g", "classification": "%d", "beam_index": "%d",
+                "scan_index": "%d", "turntable_angle_rad": "%.17g", "range_m": "%.17g",
+                "time": "%.17g"}
+
+
+def _table_text(cloud: PointCloud) -> bytes:
+    cols = _columns(cloud)
+    # Integers go through int64 so "%d" never sees a float; floats keep full precision.
+    table = [cloud.points_turntable[:, i] for i in range(3)] + [cols[n] for n in _FIELD_NAMES]
+    fmt = ["%.9f"] * 3 + [_TXT_FORMATS[n] for n in _FIELD_NAMES]
+    line = " ".join(fmt) + "\n"
+    buffer = io.StringIO()
+    for row in zip(*(c.tolist() for c in table)):
+        buffer.write(line % row)
+    return buffer.getvalue().encode("ascii")
+
 
 def to_txt(cloud: PointCloud) -> bytes:
-    """ASCII columns: x y z (nanometre resolution) and the scalar fields."""
-    cols = _columns(cloud)
-    header = "//x y z " + " ".join(cols) + "\n"
-    table = np.column_stack([cloud.points_turntable] + [cols[n].astype(np.float64) for n in cols])
-    fmt = ["%.9f"] * 3 + ["%d"] * 4 + ["%.12g"] * 3
-    buffer = io.BytesIO()
-    buffer.write(header.encode("ascii"))
-    np.savetxt(buffer, table, fmt=fmt, delimiter=" ")
-    return buffer.getvalue()
+    """ASCII columns with a CloudCompare header: x y z (1 nm steps) and every scalar field."""
+    return ("//" + " ".join(_TXT_NAMES) + "\n").encode("ascii") + _table_text(cloud)
+
+
+def to_xyz(cloud: PointCloud) -> bytes:
+    """ASCII columns, no header: x y z then the fields in :func:`to_txt`'s order.
+
+    Open3D reads the first three columns; plantsim reads all of them back.
+    """
+    return _table_text(cloud)
 
 
 def from_txt(data: bytes) -> PointCloud:
-    first = data.split(b"\n", 1)[0].decode("ascii", "replace")
-    names = first.lstrip("/#").split() if first.startswith(("//", "#")) else ["x", "y", "z"]
-    table = np.loadtxt(io.BytesIO(data), comments=("//", "#"), ndmin=2)
-    rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
-    for i, name in enumerate(names):
-        rows[name] = table[:, i]
-    return _from_rows(rows)
+    """Reads ASCII columns: a ``//`` or ``#`` header names them; without one, ten
+    columns are plantsim's (:func:`to_xyz`), otherwise the first three are x y z."""
+    first = data.split(b"\n", 1)[0].decode("ascii", "replace").strip()
+    header = first.startswith(("//", "#"))
+    table = np.loadtxt(io.BytesIO(data), comments=("//", "#"), ndmin=2, dtype=np.float64)
+    if header:
+        names = [n.lower() for n in first.lstrip("/#").split()]
+    elif table.shape[1] == len(_TXT_NAMES):
+        names = list(_TXT_NAMES)
+    else:
+        names = ["x", "y", "z"]
+    if table.size and table.shape[1] < len(names):
+        raise ValueError(f"the header names {len(names)} columns but rows have {table.shape[1]}")
+    rows = {name: table[:, i] for i, name in enumerate(names)} if table.size else {
+        name: np.zeros(0) for name in names}
+    missing = [a for a in "xyz" if a not in rows]
+    if missing:
+        raise ValueError(f"no {', '.join(missing)} column; the header names {', '.join(names)}")
+    xyz = np.stack([rows["x"], rows["y"], rows["z"]], axis=1)
+    cols = {}
+    for name, values in rows.items():
+        canonical = _canonical(name)
+        if canonical in ("x", "y", "z"):
+            continue
+        # Text has no types: integers are plantsim's integer fields, intensity is 0..1.
+        cols[canonical] = (values.astype(np.float32) if canonical == "intensity" else values)
+    return _cloud_from_columns(xyz, cols)
 
 
-EXPORTERS: dict[str, Callable[[PointCloud], bytes]] = {
-    ".las": to_las, ".ply": to_ply, ".pcd": to_pcd, ".txt": to_txt, ".xyz": to_txt}
+EXPORTERS: dict[str, Callable[..., bytes]] = {
+    ".las": to_las, ".laz": to_laz, ".ply": to_ply, ".pcd": to_pcd, ".txt": to_txt,
+    ".xyz": to_xyz}
 READERS: dict[str, Callable[[bytes], PointCloud]] = {
-    ".las": from_las, ".ply": from_ply, ".pcd": from_pcd, ".txt": from_txt, ".xyz": from_txt}
+    ".las": from_las, ".laz": from_las, ".ply": from_ply, ".pcd": from_pcd, ".txt": from_txt,
+    ".xyz": from_txt}
+# Which keyword options each format takes (see encode_cloud).
+_OPTIONS = {".las": ("beam_angle_rad",), ".laz": ("beam_angle_rad",),
+            ".ply": ("precision",), ".pcd": ("precision",)}
 
 
 def check_output_path(path: str | os.PathLike) -> Path:
@@ -308,21 +506,38 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
         raise
 
 
-def encode_cloud(path: str | os.PathLike, cloud: PointCloud) -> bytes:
-    """The file contents of ``cloud`` in the format ``path``'s extension names."""
+def encode_cloud(path: str | os.PathLike, cloud: PointCloud, *, precision: str = "single",
+                 beam_angle_rad: np.ndarray | None = None) -> bytes:
+    """The file contents of ``cloud`` in the format ``path``'s extension names (pure).
+
+    Args:
+      path: only its extension is used (``EXPORTERS`` lists them).
+      cloud: the points.
+      precision: "single" or "double" x y z in PLY and PCD; LAS/LAZ (0.01 mm
+        grid) and TXT/XYZ (1 nm steps) do not depend on it.
+      beam_angle_rad: (n,) radians, lidar frame, per point: the LAS/LAZ scan
+        angle (ignored by the other formats, which have no such field).
+
+    Raises:
+      ValueError: unknown extension or precision.
+    """
     suffix = Path(path).suffix.lower()
     if suffix not in EXPORTERS:
         raise ValueError(f"unknown point-cloud format {suffix!r}; use one of {', '.join(EXPORTERS)}")
-    return EXPORTERS[suffix](cloud)
+    _check_precision(precision)
+    given = {"precision": precision, "beam_angle_rad": beam_angle_rad}
+    return EXPORTERS[suffix](cloud, **{k: given[k] for k in _OPTIONS.get(suffix, ())})
 
 
-def write_cloud(path: str | os.PathLike, cloud: PointCloud, *, sidecar: dict | None = None) -> None:
+def write_cloud(path: str | os.PathLike, cloud: PointCloud, *, sidecar: dict | None = None,
+                precision: str = "single", beam_angle_rad: np.ndarray | None = None) -> None:
     """Writes a cloud (and, if given, its sidecar ``<path>.json``), atomically.
 
     The cloud is encoded fully in memory before anything touches the disk.
+    ``precision`` and ``beam_angle_rad`` are :func:`encode_cloud`'s.
     """
     path = check_output_path(path)
-    data = encode_cloud(path, cloud)
+    data = encode_cloud(path, cloud, precision=precision, beam_angle_rad=beam_angle_rad)
     if sidecar is not None:
         text = json.dumps(sidecar, indent=2, sort_keys=False, default=_json_default) + "\n"
         write_atomic(sidecar_path(path), text.encode("utf-8"))
@@ -335,7 +550,7 @@ def sidecar_path(path: str | os.PathLike) -> Path:
 
 
 def read_cloud(path: str | os.PathLike) -> PointCloud:
-    """Reads a point cloud written by plantsim (or any LAS/PLY/PCD/TXT with x y z)."""
+    """Reads a point cloud written by plantsim (or any LAS/LAZ/PLY/PCD/TXT/XYZ with x y z)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READERS:
