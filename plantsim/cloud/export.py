@@ -429,7 +429,9 @@ def from_txt(data: bytes) -> PointCloud:
     columns are plantsim's (:func:`to_xyz`), otherwise the first three are x y z."""
     first = data.split(b"\n", 1)[0].decode("ascii", "replace").strip()
     header = first.startswith(("//", "#"))
-    table = np.loadtxt(io.BytesIO(data), comments=("//", "#"), ndmin=2, dtype=np.float64)
+    body = data.split(b"\n", 1)[1] if header else data
+    table = (np.loadtxt(io.BytesIO(body), comments=("//", "#"), ndmin=2, dtype=np.float64)
+             if body.strip() else np.zeros((0, 0)))
     if header:
         names = [n.lower() for n in first.lstrip("/#").split()]
     elif table.shape[1] == len(_TXT_NAMES):
