@@ -265,3 +265,17 @@ def test_pcl_typed_pointxyz_loader_reads_the_coordinates(tmp_path, cloud, suffix
     distance = float(re.search(r"Hausdorff Distance: ([0-9.eE+-]+)", out).group(1))
     # The farthest point of a from b's cloud: at most the shift, and well above 0.
     assert 0.02 < distance <= shift_m + 1e-6
+
+
+def test_older_plantsim_files_still_read():
+    # plantsim 0.2 wrote uint16 intensity (0..65535) and unprefixed names.
+    ply = (b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty double x\n"
+           b"property double y\nproperty double z\nproperty uchar classification\n"
+           b"property ushort intensity\nend_header\n"
+           + np.array([(0.1, 0.2, 0.3, 4, 65535)], dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"),
+                                                          ("c", "u1"), ("i", "<u2")]).tobytes())
+    txt = b"//x y z classification intensity beam_index\n0.1 0.2 0.3 64 32768 7\n"
+    a, b = pio.from_ply(ply), pio.from_txt(txt)
+    assert a.hit_class[0] == HitClass.PLANT and a.intensity[0] == 1.0
+    assert b.hit_class[0] == HitClass.TURNTABLE and b.beam_index[0] == 7
+    np.testing.assert_allclose(b.intensity, [32768 / 65535], rtol=1e-6)

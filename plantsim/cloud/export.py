@@ -451,8 +451,11 @@ def from_txt(data: bytes) -> PointCloud:
         canonical = _canonical(name)
         if canonical in ("x", "y", "z"):
             continue
-        # Text has no types: integers are plantsim's integer fields, intensity is 0..1.
-        cols[canonical] = (values.astype(np.float32) if canonical == "intensity" else values)
+        if canonical == "intensity":
+            # Text has no types: plantsim's files before 0.3 wrote 0..65535 integers.
+            legacy = values.size and values.max() > 1 and (values == np.round(values)).all()
+            values = (values / 65535 if legacy else values).astype(np.float32)
+        cols[canonical] = values
     return _cloud_from_columns(xyz, cols)
 
 
