@@ -35,6 +35,8 @@ from plantsim.errors import (
     ServoAlarmError,
     ServoCommunicationError,
     SimulationError,
+    Terminated,
+    UnsafeStopError,
 )
 from plantsim.plant.mesh import PlantMesh, load_plant, plant_from_arrays
 from plantsim.plant.procedural import (
@@ -82,6 +84,29 @@ _LAZY = {
     "Sweep": "plantsim.evaluation.study",
     "run_study": "plantsim.evaluation.study",
     "pareto_front": "plantsim.evaluation.study",
+    "calibrate": "plantsim.cloud.calibration",
+    "Calibration": "plantsim.cloud.calibration",
+    "CalibrationTarget": "plantsim.plant.target",
+    "CALIBRATION_TARGET": "plantsim.plant.target",
+    "fit_sensor": "plantsim.sensor.fit",
+    "FlatTargetRecording": "plantsim.sensor.fit",
+    "SensorFit": "plantsim.sensor.fit",
+    "FlatTarget": "plantsim.sensor.flat_target",
+    "simulate_flat_target": "plantsim.sensor.flat_target",
+    "SafeStop": "plantsim.hardware.safety",
+    "StopAction": "plantsim.hardware.safety",
+    "SafeStopReport": "plantsim.hardware.safety",
+    "ServoStatus": "plantsim.hardware.dynamixel.turntable",
+    "render_scene": "plantsim.cloud.render",
+    "render_cloud": "plantsim.cloud.render",
+    "error_picture": "plantsim.cloud.render",
+    "View": "plantsim.cloud.render",
+    "RenderError": "plantsim.cloud.render",
+    "dask_executor": "plantsim.evaluation.study",
+    "SettingTypeError": "plantsim.validation",
+    "MissingExtraError": "plantsim.validation",
+    "UrgLidar": "plantsim.hardware.urg",
+    "UrgEmulator": "plantsim.hardware.urg",
 }
 
 __all__ = [
@@ -93,21 +118,30 @@ __all__ = [
     # parts
     "load_plant", "plant_from_arrays", "PlantMesh", "bundled_plant_path", "build_scene", "Scene", "HitClass",
     "SimulatedLidar", "Caster", "MujocoBackend", "BeamStatus", "Turntable", "SimulatedTurntable",
-    "ServoTurntable",
+    "ServoTurntable", "ServoStatus", "SafeStop", "StopAction", "SafeStopReport",
     # the raw record and the cloud
     "RawScan", "BeamGrid", "ANGLE_MODES", "read_raw", "write_raw", "reconstruct", "PointCloud", "read_cloud",
     "write_cloud", "EXPORTERS", "CLASSIFICATION",
+    # pictures
+    "render_scene", "render_cloud", "error_picture", "View", "RenderError",
+    # the real LiDAR
+    "UrgLidar", "UrgEmulator",
+    # calibration and the sensor fit
+    "calibrate", "Calibration", "CalibrationTarget", "CALIBRATION_TARGET", "fit_sensor", "FlatTargetRecording",
+    "SensorFit", "FlatTarget", "simulate_flat_target",
     # procedural plants
     "make_maize", "make_wheat", "MaizeParams", "WheatParams", "ProceduralPlant", "PART_STEM", "PART_LEAF",
     "PART_EAR",
     # evaluation
     "Evaluation", "EvaluationOptions", "evaluate_scan", "cloud_mesh_metrics", "extract_traits",
-    "traits_from_mesh", "Sweep", "run_study", "pareto_front",
+    "traits_from_mesh", "Sweep", "run_study", "pareto_front", "dask_executor", "SettingTypeError",
+    "MissingExtraError",
     # transforms
     "make_T", "invert_T", "apply_T",
     # errors
     "PlantSimError", "ConfigError", "MeshError", "SceneError", "SimulationError", "HardwareError",
-    "ServoAlarmError", "ServoCommunicationError", "ScanInterruptedError", "JournalError",
+    "ServoAlarmError", "ServoCommunicationError", "ScanInterruptedError", "JournalError", "UnsafeStopError",
+    "Terminated",
 ]
 
 

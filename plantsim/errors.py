@@ -92,3 +92,41 @@ class UnsafeStopError(HardwareError):
     def __init__(self, message: str, *, report):
         super().__init__(message)
         self.report = report
+
+
+class LidarError(HardwareError):
+    """The real LiDAR (Hokuyo URG over SCIP 2.0) failed, refused a command, or is not the one expected."""
+
+
+class LidarCommunicationError(LidarError):
+    """The LiDAR's link failed: no reply, garbled replies, or the port vanished."""
+
+
+class LidarTimeoutError(LidarCommunicationError):
+    """The LiDAR did not answer (or stopped streaming) within the timeout."""
+
+
+class LidarChecksumError(LidarCommunicationError):
+    """The LiDAR's replies kept failing their checksums or framing after the retries."""
+
+
+class LidarDisconnectedError(LidarCommunicationError):
+    """The LiDAR's serial port failed or vanished (unplugged?)."""
+
+
+class LidarStatusError(LidarError):
+    """The LiDAR answered a command with an error status.
+
+    Attributes:
+        command: the command's symbol ("GD", "BM", ...).
+        status: the 2-character status.
+    """
+
+    def __init__(self, message: str, *, command: str = "", status: str = ""):
+        super().__init__(message)
+        self.command = command
+        self.status = status
+
+
+class LidarModelError(LidarError):
+    """The connected LiDAR is not the model (or geometry) the configuration expects."""

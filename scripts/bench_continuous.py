@@ -1,7 +1,11 @@
 """Benchmark: a continuous 1-rpm scan (one full turn = 60 s of rig time).
 
 Prints the wall time of each phase (scene, physics + casting, reconstruction),
-median of several runs, and how much faster than real time it is.
+median of several runs, and how much faster than real time it is; then the
+physics alone (the servo turning the table with the plant on it for the same
+rig time), stepped in chunks inside MuJoCo (``TurntableSim``, mujoco.rollout)
+against the former one ``mj_step`` call per step from Python, measured in the
+same run.
 
     PYTHONPATH=. python scripts/bench_continuous.py [mesh] [--up y] [--runs 5] [--rpm 1]
 """
@@ -9,15 +13,52 @@ median of several runs, and how much faster than real time it is.
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import statistics
 import time
+
+import mujoco
+import numpy as np
 
 
 from plantsim.plant.mesh import load_plant
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan, simulated_rig_time_s
 from plantsim.sensor.spec import PRESETS
+from plantsim.turntable.dynamics import TurntableSim, build_dynamic_scene, torque_gains
 from plantsim.turntable.options import TurntableOptions
+
+
+def per_step_reference(dscene, rpm: float, n: int) -> np.ndarray:
+    """The former loop: one mj_step call per physics step, the profile fed per step."""
+    sim = TurntableSim(dscene, np.random.default_rng(0))
+    profile = sim.command(1e3, profile_velocity_rad_s=rpm * 2 * math.pi / 60)
+    m, d = dscene.scene.model, mujoco.MjData(dscene.scene.model)
+    g = torque_gains(dscene.dynamics.servo)
+    ca, qa, va = dscene.servo_ctrl_adr, dscene.servo_qpos_adr, dscene.servo_dof_adr
+    table_qa = int(m.jnt_qposadr[m.joint("turntable").id])
+    rec = np.empty((n, 5))
+    chunk = 200
+    for start in range(0, n, chunk):
+        k = min(chunk, n - start)
+        t = (start + np.arange(k)) * sim.dt
+        p_ref, v_ref, a_ref = profile.sample(t)
+        ctrl = np.stack([p_ref, v_ref, g["kff_vel"] * v_ref + g["kff_acc"] * a_ref], axis=1)
+        for i in range(k):
+            d.ctrl[ca:ca + 3] = ctrl[i]
+            mujoco.mj_step(m, d)
+            rec[start + i, 1] = d.qpos[table_qa]
+            rec[start + i, 2] = d.qpos[qa]
+            rec[start + i, 3] = d.qvel[va]
+    return rec
+
+
+def chunked(dscene, rpm: float, n: int) -> np.ndarray:
+    sim = TurntableSim(dscene, np.random.default_rng(0))
+    sim.command(1e3, profile_velocity_rad_s=rpm * 2 * math.pi / 60)
+    sim.advance(n)
+    return sim.trajectory().table_rad
 
 
 def main(argv=None) -> None:
@@ -52,6 +93,23 @@ def main(argv=None) -> None:
     print("median of %d runs: " % args.runs + ", ".join(f"{k} {v:.3f} s" for k, v in med.items()))
     print(f"rig time {rig_s:.1f} s -> {rig_s / med['total']:.1f}x faster than real time (target >= 20x; "
           f"physics alone {rig_s / med['turntable']:.1f}x, casting alone {rig_s / med['scan']:.1f}x)")
+
+    # Physics alone, the same rig time, without jitter (the deterministic servo), both ways.
+    dyn = config.turntable.dynamics.replace(jitter=config.turntable.dynamics.jitter.__class__())
+    dscene = build_dynamic_scene(config.rig, plant, dyn)
+    n = result.diagnostics["physics_steps"]
+    ways = {"per-step (before)": per_step_reference, "chunked (now)": chunked}
+    physics = {k: [] for k in ways}
+    for run in range(args.runs):
+        for name, fn in ways.items():  # alternate, so load changes hit both
+            t0 = time.perf_counter()
+            fn(dscene, args.rpm, n)
+            physics[name].append(time.perf_counter() - t0)
+    pmed = {k: statistics.median(v) for k, v in physics.items()}
+    print(f"physics alone, {n:,} steps ({n * dyn.timestep_s:.1f} s rig time), median of {args.runs}: "
+          + ", ".join(f"{k} {v:.3f} s ({n * dyn.timestep_s / v:.0f}x real time)" for k, v in pmed.items())
+          + f"; chunked is {pmed['per-step (before)'] / pmed['chunked (now)']:.2f}x faster")
+    print("load average (1, 5, 15 min): " + ", ".join(f"{x:.2f}" for x in os.getloadavg()))
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from plantsim.scan.schedule import StepScan
 from plantsim.rig.scene import build_scene
 from plantsim.sensor.spec import lidar_preset
 from plantsim.scan.raw import BeamGrid
+from plantsim.sensor.casting import make_backend
 from plantsim.sensor.lidar import SimulatedLidar
 from plantsim.sensor.model import SensorModel
 
@@ -51,6 +52,7 @@ def main() -> None:
     parser.add_argument("--step-deg", type=float, default=1.0)
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--caster", default="auto", choices=["auto", "embree", "mujoco"])
     args = parser.parse_args()
 
     lidar = lidar_preset(args.lidar)
@@ -64,7 +66,9 @@ def main() -> None:
     print(f"{'case':44s} {'wall s':>7s} {'cpu s':>7s} {'rays':>11s} {'refined':>9s} {'points':>8s}")
 
     angles = BeamGrid.of(lidar).beam_angles_rad()
-    ideal = SimulatedLidar(scene, lidar, angles, nthread=args.threads)
+    backend = make_backend(scene, args.caster, nthread=args.threads)
+    print(f"ray caster: {backend.name}")
+    ideal = SimulatedLidar(scene, lidar, angles, backend=backend)
     med, cpu, lines = median_time(lambda: ideal.cast_lines(schedule.angles_rad(), np.random.default_rng(0)),
                                   args.runs)
     print(f"{'ideal (--ideal: one ray, no model)':44s} {med:7.3f} {cpu:7.3f} {n_beams:11,d} "
@@ -76,7 +80,7 @@ def main() -> None:
              ("model, 37 sub-rays, adaptive", SensorModel(footprint_rings=3)),
              ("model, 19 sub-rays, every sub-ray cast", SensorModel(adaptive_footprint=False))]
     for label, model in cases:
-        source = SimulatedLidar(scene, lidar, angles, model=model, nthread=args.threads)
+        source = SimulatedLidar(scene, lidar, angles, model=model, backend=backend)
 
         def cast(source=source):
             source.caster.n_rays_cast = 0

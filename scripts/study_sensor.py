@@ -13,7 +13,7 @@ maize works too: ``../shared/seed-rig/maize.stl --up y``.
 Point-to-mesh distance: exact point-triangle distances (trimesh) to the
 triangles owning the nearest surface samples (a 2 mm barycentric grid in a
 cKDTree), certified exact per point (the nearest triangle provably among the
-candidates). The project's exact module is plantsim.metrics (branch metrics).
+candidates). The project's exact module is plantsim.evaluation.metrics.
 """
 
 from __future__ import annotations

@@ -342,7 +342,7 @@ def test_a_diverging_setup_writes_nothing(box_file, tmp_path, capsys):
 
 @pytest.mark.parametrize("case, outcome, match", [
     (dict(gain_factor=1e4, timestep_s=1e-2, integrator="euler"), "refused", "use timestep_s <="),
-    (dict(gain_factor=1e-3, timestep_s=1e-3), "stopped", "could not follow"),
+    (dict(gain_factor=1e-3, timestep_s=1e-3), "stopped", "raise the position P gain"),
     (dict(rev_per_s=10.0), "error", "exceeds the servo's no-load speed"),
     (dict(gain_factor=1e2, timestep_s=1e-4, integrator="rk4"), "ok", ""),
     (dict(load_inertia_kg_m2=1e-8, timestep_s=1e-2, integrator="euler"), "ok", ""),

@@ -172,3 +172,38 @@ def test_vertex_deduplication_is_numpys_unique():
         unique, inverse = unique_rows(vertices)
         np.testing.assert_array_equal(unique, expected)
         np.testing.assert_array_equal(inverse, expected_inverse.reshape(-1))
+
+
+def _clean_arrays_reference(vertices, faces):
+    """clean_arrays as it was written with np.unique (the reference for the faster one)."""
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    faces = inverse.reshape(-1)[faces].astype(np.int64)
+    tri = unique[faces]
+    doubled_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    extent = float(np.ptp(unique, axis=0).max()) or 1.0
+    repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+    faces = faces[~(repeated | (doubled_area <= 1e-14 * extent * extent))]
+    used = np.unique(faces)
+    remap = np.full(len(unique), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return unique[used], remap[faces].astype(np.int32)
+
+
+def test_cleaning_gives_the_np_unique_result_exactly():
+    from plantsim.plant.mesh import clean_arrays
+    from plantsim.plant.mesh import binary_stl_arrays
+    from plantsim.resources import bundled_plant_path
+
+    rng = np.random.default_rng(1)
+    grid = rng.integers(0, 6, size=(3000, 3)).astype(np.float64) * 0.1
+    grid[::7] *= -1.0  # signed zeros among the duplicates
+    faces = rng.integers(0, len(grid), size=(2000, 3))
+    faces[:50, 1] = faces[:50, 0]  # repeated indices: dropped, and their lone vertices with them
+    cases = [(grid, faces), binary_stl_arrays(bundled_plant_path("maize").read_bytes())]
+    for vertices, faces in cases:
+        expected_vertices, expected_faces = _clean_arrays_reference(vertices, faces)
+        got_vertices, got_faces, n_dropped = clean_arrays(vertices, faces)
+        assert len(got_vertices) < len(np.unique(vertices, axis=0)) or vertices is not grid
+        np.testing.assert_array_equal(got_vertices, expected_vertices)
+        np.testing.assert_array_equal(got_faces, expected_faces)
+        assert got_faces.dtype == np.int32 and n_dropped == len(faces) - len(expected_faces)

@@ -105,7 +105,7 @@ def mixed_sizes():
 )
 def test_mixed_triangle_sizes_are_exact_on_every_search_path(mixed_sizes, options):
     v, f, pts, want = mixed_sizes
-    prox = metrics.MeshProximity(v, f, **options)
+    prox = metrics.MeshProximity(v, f, backend="grid", **options)
     got = prox.query(pts, chunk_size=300)
     np.testing.assert_allclose(got.distance, want, atol=1e-12)
     if not options:
@@ -116,7 +116,7 @@ def test_small_batches_and_chunks_change_nothing(mixed_sizes, monkeypatch):
     v, f, pts, want = mixed_sizes
     monkeypatch.setattr(metrics, "_CELLS_PER_BATCH", 7)
     monkeypatch.setattr(metrics, "_PAIRS_PER_BLOCK", 5)
-    got = metrics.MeshProximity(v, f, cell_size=0.01).query(pts, chunk_size=37, workers=2)
+    got = metrics.MeshProximity(v, f, cell_size=0.01, backend="grid").query(pts, chunk_size=37, workers=2)
     np.testing.assert_allclose(got.distance, want, atol=1e-12)
 
 
@@ -265,3 +265,32 @@ def test_validation_errors_say_what_arrived(sphere):
         metrics.cloud_mesh_metrics(np.zeros((1, 3)), v, f, proximity=other)
     with pytest.raises(ValueError, match=r"rng must be a numpy.random.Generator or an int seed"):
         metrics.sample_surface(v, f, 10, rng="seed")
+
+
+def test_libigl_backend_matches_the_reference_grid_kernel():
+    pytest.importorskip("igl", reason="libigl not installed (pip install libigl)")
+    import trimesh
+
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    rng = np.random.default_rng(5)
+    pts = rng.normal(0, 0.06, (3000, 3))
+    reference = metrics.MeshProximity(v, f, backend="grid").query(pts)
+    seen = []
+    fast = metrics.MeshProximity(v, f, backend="igl")
+    assert fast.backend == "igl"
+    got = fast.query(pts, chunk_size=1000, progress=lambda done, total: seen.append((done, total)))
+    np.testing.assert_allclose(got.distance, reference.distance, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(got.closest_points, reference.closest_points, atol=1e-12)
+    assert seen == [(1000, 3000), (2000, 3000), (3000, 3000)]
+
+
+def test_grid_backend_reports_progress_and_unknown_backend_is_refused():
+    v, f = _plane()
+    seen = []
+    metrics.MeshProximity(v, f, backend="grid").query(
+        np.zeros((10, 3)) + 0.1, chunk_size=4, workers=1,
+        progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(4, 10), (8, 10), (10, 10)]
+    with pytest.raises(ValueError, match="backend must be 'auto', 'igl' or 'grid', got 'embree'"):
+        metrics.MeshProximity(v, f, backend="embree")

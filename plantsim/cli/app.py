@@ -234,6 +234,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="plantsim", description="Simulate a 2D-LiDAR + turntable plant scanner.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
+    parser.add_argument("--version", action="version", version=f"plantsim {__import__('plantsim').__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     scan = sub.add_parser("scan", help="scan a plant mesh and write a point cloud",
@@ -295,6 +296,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_study_command(sub)
     __import__("plantsim.cli.sensor", fromlist=["add_sensor_commands"]).add_sensor_commands(sub)
     add_rig_commands(sub)
+    __import__("plantsim.cli.render", fromlist=["add_render_command"]).add_render_command(sub)
+    __import__("plantsim.cli.urg", fromlist=["add_urg_commands"]).add_urg_commands(sub)
     return parser
 
 

@@ -2,7 +2,7 @@
 
 ``plantsim.cli`` registers them with :func:`add_rig_commands`; each command sets
 ``func`` on its namespace, a callable taking the parsed arguments and returning the
-exit code. Until that is wired, ``python -m plantsim.cli_rig ...`` runs them alone.
+exit code; ``python -m plantsim.cli.rig ...`` also runs them alone.
 
 Examples::
 
@@ -214,6 +214,9 @@ def run_emulator(args: argparse.Namespace) -> int:
 
 
 def run_rig_ping(args: argparse.Namespace) -> int:
+    from plantsim.validation import require_extra
+
+    require_extra("dynamixel_sdk", "rig", "plantsim rig ping")  # one line, not a traceback
     from plantsim.hardware.dynamixel.driver import DynamixelTurntable
     from plantsim.errors import HardwareError
 
@@ -240,7 +243,7 @@ def run_rig_ping(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Runs the rig commands alone (before ``plantsim.cli`` wires them in)."""
-    parser = argparse.ArgumentParser(prog="python -m plantsim.cli_rig")
+    parser = argparse.ArgumentParser(prog="python -m plantsim.cli.rig")
     add_rig_commands(parser.add_subparsers(dest="command", metavar="COMMAND", required=True))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")

@@ -52,6 +52,10 @@ def cmd_study(args: argparse.Namespace) -> int:
     from plantsim.cloud.export import write_atomic
     from plantsim.evaluation.study import Sweep, plot_error_vs_time, rows_to_csv, run_study
 
+    from plantsim.validation import require_extra
+
+    # Before any run: a study must not scan for an hour and then fail at the plot.
+    require_extra("matplotlib", "plot", "plantsim study's plot")
     base = merge(load_toml(args.config) if args.config else {}, _study_overrides(args))
     grid = [(name, tuple(values)) for name, values in (
         ("mode", args.mode if args.mode and len(args.mode) > 1 else None), ("step_deg", args.step_deg), ("n_beams", args.n_beams),
@@ -75,7 +79,19 @@ def cmd_study(args: argparse.Namespace) -> int:
                   f"{row.get('chamfer_m', float('nan')) * 1e3:.3g} mm")
         print(f"[{done}/{total}] {what}: {figure}", file=sys.stderr)
 
-    rows = run_study(sweep, max_workers=args.workers, progress=progress)
+    executor = client = None
+    if args.scheduler:
+        from plantsim.evaluation.study import dask_executor
+
+        executor, client = dask_executor(args.scheduler)
+        print(f"study: on the Dask cluster at {args.scheduler} "
+              f"({len(client.scheduler_info().get('workers', {}))} workers)", file=sys.stderr)
+    try:
+        rows = run_study(sweep, max_workers=args.workers, progress=progress, executor=executor,
+                         send_meshes=args.send_meshes, threads_per_run=args.threads_per_run)
+    finally:
+        if client is not None:
+            client.close()
     write_atomic(csv_path, rows_to_csv(rows).encode("utf-8"))
     title = f"{', '.join(Path(p).stem for p in sweep.plants)}: {args.error} against {args.time}"
     write_atomic(png_path, plot_error_vs_time(rows, error=args.error, time=args.time,
@@ -128,6 +144,14 @@ def add_study_command(subparsers: argparse._SubParsersAction) -> argparse.Argume
     measure.add_argument("--time", default="wall_time_s",
                          help="CSV column on the x axis (default wall_time_s; cpu_time_s, "
                               "simulated_rig_time_s)")
+    cluster = study.add_argument_group("where the runs go (default: local processes)")
+    cluster.add_argument("--scheduler", metavar="ADDRESS",
+                         help="a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786 "
+                              "(pip install 'plantsim[cluster]'; see docs/cluster.md)")
+    cluster.add_argument("--send-meshes", action="store_true",
+                         help="send mesh files with the runs (workers without a shared file system)")
+    cluster.add_argument("--threads-per-run", type=int, metavar="N",
+                         help="ray-casting threads of each run (default: the worker's cores)")
     measure.add_argument("--workers", type=int,
                          help="parallel runs (default: one per core); 1 runs one after the other")
     study.set_defaults(func=cmd_study)

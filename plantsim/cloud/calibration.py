@@ -42,7 +42,7 @@ PARAMETERS = ("lidar_distance_m", "lidar_height_m", "tilt_deg", "yaw_deg", "roll
 # Finite-difference steps and the scale of each parameter (metres and degrees).
 _SCALE = np.array([1e-3, 1e-3, 0.1, 0.1, 0.1, 0.1])
 # How far from the starting geometry the fit may go: 5 cm, 10 degrees, half a turn of offset.
-_BOUNDS = np.array([0.05, 0.05, 10.0, 10.0, 10.0, 180.0])
+_BOUNDS = np.array([0.05, 0.05, 10.0, 10.0, 10.0, 200.0])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,10 +146,25 @@ def calibrate(raw: RawScan, *, nominal: RigGeometry = RigGeometry(), target: Cal
         return out
 
     x0 = np.array([getattr(nominal, k) for k in PARAMETERS], dtype=np.float64)
+    # Only the fin breaks the target's symmetry, so the encoder offset has a narrow basin:
+    # find it first by a search over a whole turn (the other parameters at their start).
+    offset_index = PARAMETERS.index("encoder_offset_deg")
+    z = np.zeros(len(PARAMETERS))
+    base_scale = max(loss_scale_m, 1.5 * float(np.median(np.abs(residuals(z)))))
+    best = (np.inf, 0.0)
+    for step_deg, span_deg in ((2.0, 180.0), (0.25, 3.0)):
+        centre = best[1]
+        for offset in centre + np.arange(-span_deg, span_deg + step_deg / 2, step_deg):
+            z[offset_index] = offset / _SCALE[offset_index]
+            r = residuals(z) / base_scale
+            cost = float(np.sum(np.log1p(r * r)))
+            if cost < best[0]:
+                best = (cost, offset)
+    z = np.zeros(len(PARAMETERS))
+    z[offset_index] = best[1] / _SCALE[offset_index]
     # The loss's scale follows the data's noise: the median absolute residual at the start
     # (a realistic sensor's ranges scatter by centimetres, an ideal one's by nothing).
-    scale = max(loss_scale_m, 1.5 * float(np.median(np.abs(residuals(np.zeros(len(PARAMETERS)))))))
-    z = np.zeros(len(PARAMETERS))
+    scale = max(loss_scale_m, 1.5 * float(np.median(np.abs(residuals(z)))))
     for _ in range(4):  # shrink the scale as the fit settles, down to the noise
         fit = least_squares(residuals, z, loss="cauchy", f_scale=scale, x_scale=1.0, diff_step=1e-3,
                             bounds=(-_BOUNDS / _SCALE, _BOUNDS / _SCALE), max_nfev=100)

@@ -1,9 +1,25 @@
-"""Point-cloud files: LAS 1.4 / LAZ, PLY, PCD and TXT/XYZ, chosen by extension.
+"""Point-cloud files: LAS/LAZ 1.4, PLY, PCD and TXT/XYZ, chosen by extension.
+
+Each writer is checked against the readers people use (tests/test_interop.py):
+LAS 1.4 sets the global-encoding WKT bit (PDAL <= 2.7.1 refuses files without it)
+and return number / number of returns 1/1 (the spec requires 1..15), with the
+scan line as point source id; ``.laz`` is the same, compressed by ``lazrs``
+(the ``laz`` extra). PLY has float32 x y z by default (PCL's ``PointXYZ`` reads
+doubles as zeros; pass ``xyz_double=True`` for float64), float ``intensity`` and
+the other fields named ``scalar_<name>`` so CloudCompare loads them as scalar
+fields (Open3D's tensor reader keeps every property). PCD has float32 x y z and
+intensity (PCL's ``PointXYZI``) and a uint32 ``label`` holding the class code
+(``PointXYZL``). TXT starts with a ``//X Y Z ...`` line that CloudCompare takes
+as column names (``SF_`` ones as scalar fields, never colours); XYZ is the same
+columns without a header (Open3D reads x y z from it); PTS is a point count and
+``x y z intensity`` (Open3D and CloudCompare read both).
 
 Exporters take a :class:`PointCloud` and return bytes (they never touch the
-disk); :func:`write_cloud` is the only writer and writes atomically (a temp
-file in the same folder, then ``os.replace``), so a failure leaves no
-half-written file. Readers give a :class:`PointCloud` back, for round trips and
+disk); :func:`write_cloud` writes a cloud and its sidecar as a unit through
+:class:`plantsim.cloud.outputs.OutputSet`, the writer every output goes
+through (``plantsim.scan.pipeline.write_result`` adds the raw bag to the same
+set), so a failure leaves no half-written file and no new cloud beside an old
+sidecar. Readers give a :class:`PointCloud` back, for round trips and
 for evaluating clouds made elsewhere.
 
 Every format carries the same per-point fields: x, y, z (turntable frame,
@@ -50,18 +66,16 @@ LAS_SCALE_M = 1e-5
 # LAS 1.4 R15 table 16: point formats 6-10 store the scan angle as int16 in 0.006 degree steps.
 LAS_SCAN_ANGLE_STEP_DEG = 0.006
 
-PRECISIONS = ("single", "double")
-
-# The scalar fields after x, y, z, in file order: plantsim's name and the numpy
-# dtype a lossless column needs. Formats rename or retype them below.
+# Name, numpy dtype, PCD type/size letter: the scalar fields after x, y, z.
+# Intensity is received power in [0, 1] as float32 (PCL's PointXYZI field).
 _FIELDS = (
-    ("intensity", np.float32),
-    ("classification", np.uint8),
-    ("beam_index", np.uint16),
-    ("scan_index", np.uint32),
-    ("turntable_angle_rad", np.float64),
-    ("range_m", np.float64),
-    ("time", np.float64),
+    ("classification", np.uint8, "U"),
+    ("intensity", np.float32, "F"),
+    ("beam_index", np.uint16, "U"),
+    ("scan_index", np.uint32, "U"),
+    ("turntable_angle_rad", np.float64, "F"),
+    ("range_m", np.float64, "F"),
+    ("time", np.float64, "F"),
 )
 _FIELD_NAMES = tuple(name for name, _ in _FIELDS)
 
@@ -71,9 +85,8 @@ def _columns(cloud: PointCloud) -> dict[str, np.ndarray]:
     codes = np.zeros(256, dtype=np.uint8)
     for cls, code in CLASSIFICATION.items():
         codes[int(cls)] = code
-    n = len(cloud)
-    intensity = (np.zeros(n, np.float32) if cloud.intensity is None
-                 else np.clip(np.asarray(cloud.intensity, dtype=np.float32), 0.0, 1.0))
+    intensity = (np.zeros(len(cloud), np.float32) if cloud.intensity is None
+                 else np.clip(cloud.intensity, 0.0, 1.0).astype(np.float32))
     return {
         "intensity": intensity,
         "classification": codes[cloud.hit_class],
@@ -97,31 +110,19 @@ def _canonical(name: str) -> str:
 
 
 def _cloud_from_columns(xyz: np.ndarray, cols: dict[str, np.ndarray]) -> PointCloud:
-    """A cloud from x y z and whatever of plantsim's fields a file had (by canonical name).
-
-    Intensity stored as floats is taken as is (0..1); stored as integers (LAS,
-    plantsim's files before 0.3) it is scaled from 0..65535. All-zero intensity
-    means "not modelled" (None).
-    """
-    n = len(xyz)
-    cols = {_canonical(k): v for k, v in cols.items()}
-    get = lambda name, dtype: (np.asarray(cols[name]) if name in cols  # noqa: E731
-                               else np.zeros(n, dtype))
-    classification = get("classification", np.uint8).astype(np.int64)
-    hit_class = np.array([_CLASS_OF_CODE.get(c, HitClass.NONE) for c in range(256)],
-                         dtype=np.uint8)[np.clip(classification, 0, 255)]
-    raw = get("intensity", np.float32)
-    intensity = (raw.astype(np.float64) / 65535 if raw.dtype.kind in "ui"
-                 else raw.astype(np.float64))
+    classification = np.asarray(cols["classification"], dtype=np.int64)
+    hit_class = np.array([_CLASS_OF_CODE.get(int(c), HitClass.NONE) for c in range(256)],
+                         dtype=np.uint8)[classification]
+    intensity = np.asarray(cols["intensity"], dtype=np.float32)
     return PointCloud(
         points_turntable=np.ascontiguousarray(xyz, dtype=np.float64),
         hit_class=hit_class,
-        beam_index=get("beam_index", np.uint16).astype(np.uint16),
-        scan_index=get("scan_index", np.uint32).astype(np.uint32),
-        turntable_angle_rad=get("turntable_angle_rad", np.float64).astype(np.float64),
-        range_m=get("range_m", np.float64).astype(np.float64),
-        time_s=get("time", np.float64).astype(np.float64),
-        intensity=intensity.astype(np.float32) if intensity.any() else None,
+        beam_index=np.asarray(cols["beam_index"]).astype(np.uint16),
+        scan_index=np.asarray(cols["scan_index"]).astype(np.uint32),
+        turntable_angle_rad=np.asarray(cols["turntable_angle_rad"], dtype=np.float64),
+        range_m=np.asarray(cols["range_m"], dtype=np.float64),
+        time_s=np.asarray(cols["time"], dtype=np.float64),
+        intensity=intensity if intensity.any() else None,
     )
 
 
@@ -169,30 +170,12 @@ _LAS_EXTRA = (("beam_index", np.uint16, "beam within its scan line"),
               ("range_m", np.float64, "measured range, metres"))
 
 
-def to_las(cloud: PointCloud, *, beam_angle_rad: np.ndarray | None = None,
-           compress: bool = False) -> bytes:
-    """LAS 1.4, point format 6 (or LAZ when ``compress``); GPS time is the beam's time.
-
-    Per point: return number = number of returns = 1 (the sensor reports one
-    echo per beam); scan angle = the beam's angle in the LiDAR's scan plane
-    (0.006 degree steps) when ``beam_angle_rad`` is given, else 0; point source
-    ID 0 (one scanner, one file; the scan line is the ``scan_index`` extra
-    dimension, which holds all 32 bits). The WKT global-encoding bit is set, as
-    LAS 1.4 R15 requires for point formats 6-10 (no CRS: the turntable frame is local).
-
-    Args:
-      cloud: the points.
-      beam_angle_rad: (n,) float64 radians, lidar frame, one per point (e.g.
-        ``spec.beam_angles_rad()[cloud.beam_index]``), or None.
-      compress: write LAZ (laspy's lazrs backend) instead of LAS.
-
-    Raises:
-      OverflowError: a coordinate does not fit the 0.01 mm grid (laspy's own check).
-      ValueError: ``beam_angle_rad`` has the wrong shape or leaves -196.6..196.6 degrees.
-    """
+def _las_data(cloud: PointCloud):
     import laspy
 
     header = laspy.LasHeader(point_format=6, version="1.4")
+    # LAS 1.4 R15 2.4: point formats 6-10 require the WKT bit (bit 4) of the
+    # global encoding; PDAL <= 2.7.1 refuses files without it.
     header.global_encoding.wkt = True
     header.scales = np.full(3, LAS_SCALE_M)
     xyz = cloud.points_turntable
@@ -206,17 +189,53 @@ def to_las(cloud: PointCloud, *, beam_angle_rad: np.ndarray | None = None,
     las.classification = cols["classification"]
     las.intensity = np.round(cols["intensity"].astype(np.float64) * 65535).astype(np.uint16)
     las.gps_time = cols["time"]
+    # One return per pulse: the simulated and the real URG-04LX report the
+    # first echo only (LAS 1.4 R15 table 7 requires 1..15, never 0).
     las.return_number = np.ones(len(cloud), np.uint8)
     las.number_of_returns = np.ones(len(cloud), np.uint8)
-    if beam_angle_rad is not None:
-        las.scan_angle = _las_scan_angle(beam_angle_rad, len(cloud))
+    # Point source id: the scan line (turntable step) when it fits 16 bits.
+    if len(cloud) and int(cloud.scan_index.max()) <= 0xFFFF:
+        las.point_source_id = cloud.scan_index.astype(np.uint16)
     for name, _, _ in _LAS_EXTRA:
         las[name] = cols[name]
+    return las
+
+
+def to_las(cloud: PointCloud) -> bytes:
+    """LAS 1.4, point format 6; GPS time is the beam's time (s since the scan's start).
+
+    Intensity is scaled to 0..65535; return number and number of returns are
+    1; point source id is the scan line index (when it fits 16 bits). The scan
+    angle is left 0: the cloud does not carry the beam's angle in the sensor.
+
+    Raises:
+      OverflowError: a coordinate does not fit the 0.01 mm grid (laspy's own check).
+    """
     buffer = io.BytesIO()
-    if compress:
-        las.write(buffer, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
-    else:
-        las.write(buffer, do_compress=False)
+    _las_data(cloud).write(buffer)
+    return buffer.getvalue()
+
+
+def _laz_backend():
+    import laspy
+
+    try:
+        import lazrs  # noqa: F401
+    except ImportError:
+        raise RuntimeError("writing or reading .laz needs lazrs: pip install 'plantsim[laz]'"
+                           ) from None
+    return laspy.LazBackend.Lazrs
+
+
+def to_laz(cloud: PointCloud) -> bytes:
+    """LAZ: the LAS 1.4 of :func:`to_las`, compressed losslessly by ``lazrs``.
+
+    Raises:
+      RuntimeError: lazrs is not installed (names the extra).
+    """
+    backend = _laz_backend()
+    buffer = io.BytesIO()
+    _las_data(cloud).write(buffer, do_compress=True, laz_backend=backend)
     return buffer.getvalue()
 
 
@@ -238,53 +257,65 @@ def to_laz(cloud: PointCloud, *, beam_angle_rad: np.ndarray | None = None) -> by
 
 
 def from_las(data: bytes) -> PointCloud:
-    """Reads LAS or LAZ (laspy; LAZ needs lazrs)."""
+    """Reads LAS or LAZ (any point format with x y z; plantsim's extra bytes if present)."""
     import laspy
 
+    if data[:4] == b"LASF" and len(data) > 104 and data[104] & 0x80:  # compressed bit
+        _laz_backend()
     las = laspy.read(io.BytesIO(data))
     xyz = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1)
     names = set(las.point_format.dimension_names)
-    cols = {"classification": np.asarray(las.classification),
-            "intensity": np.asarray(las.intensity)}
-    if "gps_time" in names:
-        cols["time"] = np.asarray(las.gps_time)
-    for name, _, _ in _LAS_EXTRA:
-        if name in names:
-            cols[name] = np.asarray(las[name])
+    n = len(xyz)
+    cols = {
+        "classification": np.asarray(las.classification),
+        "intensity": np.asarray(las.intensity, dtype=np.float64) / 65535,
+        "time": np.asarray(las.gps_time) if "gps_time" in names else np.zeros(n),
+    }
+    for name, dtype, _ in _LAS_EXTRA:
+        cols[name] = np.asarray(las[name]) if name in names else np.zeros(n, dtype)
     return _cloud_from_columns(xyz, cols)
 
 
 # --- PLY (binary little endian) --------------------------------------------
 
-# Sized PLY type names: Open3D's tensor reader keeps uint16 but skips "ushort",
-# "short", "char" and any uint32, so scan_index is int32 (2**31 scan lines is plenty).
-_PLY_TYPE = {"u1": "uint8", "<u2": "uint16", "<i4": "int32", "<f4": "float32", "<f8": "float64"}
-_PLY_LAYOUT = (
-    ("intensity", "intensity", np.dtype("<f4")),
-    ("scalar_classification", "classification", np.dtype("u1")),
-    ("scalar_beam_index", "beam_index", np.dtype("<u2")),
-    ("scalar_scan_index", "scan_index", np.dtype("<i4")),
-    ("scalar_turntable_angle_rad", "turntable_angle_rad", np.dtype("<f8")),
-    ("scalar_range_m", "range_m", np.dtype("<f8")),
-    ("scalar_time", "time", np.dtype("<f8")),
-)
+_PLY_TYPES = {np.uint8: "uchar", np.int32: "int", np.uint16: "ushort", np.uint32: "uint", np.float32: "float",
+              np.float64: "double"}
+# CloudCompare loads PLY vertex properties named ``scalar_*`` as scalar fields
+# without asking; ``intensity`` it knows by name.
+_PLY_PREFIX = "scalar_"
 
 
-def to_ply(cloud: PointCloud, *, precision: str = "single") -> bytes:
-    """Binary little-endian PLY.
+def _structured(cloud: PointCloud, xyz_dtype, rename: dict[str, str] | None = None,
+                types: dict[str, type] | None = None) -> np.ndarray:
+    rename, types = rename or {}, types or {}
+    fields = [(name, types.get(name, t)) for name, t, _ in _FIELDS]
+    dtype = [("x", xyz_dtype), ("y", xyz_dtype), ("z", xyz_dtype)] + [
+        (rename.get(name, name), t) for name, t in fields]
+    rows = np.empty(len(cloud), dtype=np.dtype(dtype).newbyteorder("<"))
+    for i, axis in enumerate("xyz"):
+        rows[axis] = cloud.points_turntable[:, i]
+    for name, values in _columns(cloud).items():
+        rows[rename.get(name, name)] = values
+    return rows
 
     Args:
       cloud: the points.
       precision: "single" (float32 x y z, 0.06 um steps at 1 m; what PCL's
         ``PointXYZ`` and most viewers expect) or "double" (float64).
 
-    Raises:
-      ValueError: unknown ``precision``.
-      OverflowError: a scan_index beyond int32.
+def to_ply(cloud: PointCloud, *, xyz_double: bool = False) -> bytes:
+    """Binary little-endian PLY.
+
+    Args:
+      cloud: the points.
+      xyz_double: float64 coordinates (default float32: 0.06 um at 1 m, and
+        what PCL's ``PointXYZ`` and most viewers read).
     """
-    rows = _rows(cloud, _PLY_LAYOUT, _check_precision(precision))
-    props = "".join(f"property {_PLY_TYPE[rows.dtype[n].str.replace('|', '')]} {n}\n"
-                    for n in rows.dtype.names)
+    rename = {name: _PLY_PREFIX + name for name, _, _ in _FIELDS if name != "intensity"}
+    # Open3D's tensor reader skips ushort/uint properties: the indices are int32.
+    rows = _structured(cloud, np.float64 if xyz_double else np.float32, rename,
+                       types={"beam_index": np.int32, "scan_index": np.int32})
+    props = "".join(f"property {_PLY_TYPES[rows.dtype[n].type]} {n}\n" for n in rows.dtype.names)
     header = ("ply\nformat binary_little_endian 1.0\ncomment plantsim point cloud, turntable "
               "frame, metres\ncomment scalar_classification: 4 plant, 64 turntable, 65 rig\n"
               f"element vertex {len(cloud)}\n{props}end_header\n")
@@ -313,35 +344,34 @@ def from_ply(data: bytes) -> PointCloud:
             if in_vertex:
                 n = int(parts[2])
         elif parts[:1] == ["property"] and in_vertex:
-            if parts[1] == "list":
-                raise ValueError(f"vertex list property {parts[-1]!r} is not supported")
-            fields.append((parts[2], _PLY_NP[parts[1]]))
+            name = parts[2]
+            fields.append((name[len(_PLY_PREFIX):] if name.startswith(_PLY_PREFIX) else name,
+                           _PLY_NP[parts[1]]))
     rows = np.frombuffer(data, dtype=np.dtype(fields), count=n, offset=end + len(b"end_header\n"))
     return _from_rows(rows)
 
 
+def _from_rows(rows: np.ndarray) -> PointCloud:
+    xyz = np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
+    names = rows.dtype.names
+    aliases = {"classification": ("classification", "label")}
+    cols = {}
+    for name, t, _ in _FIELDS:
+        found = [a for a in aliases.get(name, (name,)) if a in names]
+        cols[name] = rows[found[0]] if found else np.zeros(len(rows), t)
+    return _cloud_from_columns(xyz, cols)
+
+
 # --- PCD v0.7 (binary) -----------------------------------------------------
 
-_PCD_LAYOUT = (
-    ("intensity", "intensity", np.dtype("<f4")),
-    ("label", "classification", np.dtype("<u4")),
-    ("beam_index", "beam_index", np.dtype("<u2")),
-    ("scan_index", "scan_index", np.dtype("<u4")),
-    ("turntable_angle_rad", "turntable_angle_rad", np.dtype("<f8")),
-    ("range_m", "range_m", np.dtype("<f8")),
-    ("time", "time", np.dtype("<f8")),
-)
+def to_pcd(cloud: PointCloud) -> bytes:
+    """Binary PCD v0.7 for PCL.
 
-
-def to_pcd(cloud: PointCloud, *, precision: str = "single") -> bytes:
-    """Binary PCD v0.7: PCL's typed loaders (PointXYZ, PointXYZI, PointXYZL) read it.
-
-    Args:
-      cloud: the points.
-      precision: "single" (float32 x y z, as PCL's point types hold them) or
-        "double" (float64; only PCL's untyped ``PCLPointCloud2`` keeps them).
+    x y z and intensity are float32 (``PointXYZI``); the class code (4 plant,
+    64 turntable, 65 rig) is a uint32 ``label`` (``PointXYZL``/``PointXYZRGBL``).
     """
-    rows = _rows(cloud, _PCD_LAYOUT, _check_precision(precision))
+    rows = _structured(cloud, np.float32, rename={"classification": "label"},
+                       types={"classification": np.uint32})
     names = rows.dtype.names
     sizes = " ".join(str(rows.dtype[n].itemsize) for n in names)
     types = " ".join({"f": "F", "u": "U", "i": "I"}[rows.dtype[n].kind] for n in names)
@@ -412,62 +442,82 @@ def _table_text(cloud: PointCloud) -> bytes:
 
 
 def to_txt(cloud: PointCloud) -> bytes:
-    """ASCII columns with a CloudCompare header: x y z (1 nm steps) and every scalar field."""
-    return ("//" + " ".join(_TXT_NAMES) + "\n").encode("ascii") + _table_text(cloud)
+    """ASCII columns: x y z (nanometre resolution) and the scalar fields.
+
+    The first line, ``//X Y Z Intensity SF_classification ...``, names the
+    columns for CloudCompare (``SF`` names are scalar fields, never colours);
+    Open3D's ``xyz`` reader skips it and reads x y z from every other line.
+    """
+    cols = _columns(cloud)
+    names = ["X", "Y", "Z"] + ["Intensity" if n == "intensity" else f"SF_{n}" for n in cols]
+    table = np.column_stack([cloud.points_turntable] + [cols[n].astype(np.float64) for n in cols])
+    fmt = ["%.9f"] * 3 + ["%d", "%.9g", "%d", "%d"] + ["%.12g"] * 3
+    buffer = io.BytesIO()
+    buffer.write(("//" + " ".join(names) + "\n").encode("ascii"))
+    np.savetxt(buffer, table, fmt=fmt, delimiter=" ")
+    return buffer.getvalue()
 
 
 def to_xyz(cloud: PointCloud) -> bytes:
-    """ASCII columns, no header: x y z then the fields in :func:`to_txt`'s order.
+    """ASCII columns without a header, in the order of :func:`to_txt`'s header.
 
-    Open3D reads the first three columns; plantsim reads all of them back.
+    Open3D's ``xyz`` reader (which stops at a header line) reads x y z from
+    the first three columns.
     """
-    return _table_text(cloud)
+    text = to_txt(cloud)
+    return text[text.index(b"\n") + 1:]
+
+
+def to_pts(cloud: PointCloud) -> bytes:
+    """Leica PTS: a point-count line, then ``x y z intensity`` (Open3D and CloudCompare).
+
+    Only coordinates and intensity travel in this format.
+    """
+    cols = _columns(cloud)
+    buffer = io.BytesIO()
+    buffer.write(f"{len(cloud)}\n".encode("ascii"))
+    np.savetxt(buffer, np.column_stack([cloud.points_turntable, cols["intensity"]]),
+               fmt=["%.9f"] * 3 + ["%.9g"], delimiter=" ")
+    return buffer.getvalue()
+
+
+def from_pts(data: bytes) -> PointCloud:
+    table = np.loadtxt(io.BytesIO(data), skiprows=1, ndmin=2)
+    names = ["x", "y", "z", "intensity", "red", "green", "blue"][:table.shape[1]]
+    rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
+    for i, name in enumerate(names):
+        rows[name] = table[:, i]
+    return _from_rows(rows)
+
+
+_TXT_COLUMNS = ["x", "y", "z"] + [name for name, _, _ in _FIELDS]
 
 
 def from_txt(data: bytes) -> PointCloud:
-    """Reads ASCII columns: a ``//`` or ``#`` header names them; without one, ten
-    columns are plantsim's (:func:`to_xyz`), otherwise the first three are x y z."""
-    first = data.split(b"\n", 1)[0].decode("ascii", "replace").strip()
-    header = first.startswith(("//", "#"))
-    body = data.split(b"\n", 1)[1] if header else data
-    table = (np.loadtxt(io.BytesIO(body), comments=("//", "#"), ndmin=2, dtype=np.float64)
-             if body.strip() else np.zeros((0, 0)))
-    if header:
-        names = [n.lower() for n in first.lstrip("/#").split()]
-    elif table.shape[1] == len(_TXT_NAMES):
-        names = list(_TXT_NAMES)
+    """Reads ASCII columns: named by a ``//`` or ``#`` header, else plantsim's order."""
+    first = data.split(b"\n", 1)[0].decode("ascii", "replace")
+    table = np.loadtxt(io.BytesIO(data), comments=("//", "#"), ndmin=2)
+    if first.startswith(("//", "#")):
+        names = [n[3:] if n.startswith("SF_") else n.lower() for n in first.lstrip("/#").split()]
+    elif table.shape[1] == len(_TXT_COLUMNS):
+        names = list(_TXT_COLUMNS)
     else:
         names = ["x", "y", "z"]
-    if table.size and table.shape[1] < len(names):
-        raise ValueError(f"the header names {len(names)} columns but rows have {table.shape[1]}")
-    rows = {name: table[:, i] for i, name in enumerate(names)} if table.size else {
-        name: np.zeros(0) for name in names}
-    missing = [a for a in "xyz" if a not in rows]
-    if missing:
-        raise ValueError(f"no {', '.join(missing)} column; the header names {', '.join(names)}")
-    xyz = np.stack([rows["x"], rows["y"], rows["z"]], axis=1)
-    cols = {}
-    for name, values in rows.items():
-        canonical = _canonical(name)
-        if canonical in ("x", "y", "z"):
-            continue
-        if canonical == "intensity":
-            # Text has no types: plantsim's files before 0.3 wrote 0..65535 integers.
-            legacy = values.size and values.max() > 1 and (values == np.round(values)).all()
-            values = (values / 65535 if legacy else values).astype(np.float32)
-        cols[canonical] = values
-    return _cloud_from_columns(xyz, cols)
+    names = names[:table.shape[1]] + [f"_col{i}" for i in range(len(names), table.shape[1])]
+    rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
+    for i, name in enumerate(names):
+        rows[name] = table[:, i]
+    return _from_rows(rows)
 
 
-EXPORTERS: dict[str, Callable[..., bytes]] = {
+EXPORTERS: dict[str, Callable[[PointCloud], bytes]] = {
     ".las": to_las, ".laz": to_laz, ".ply": to_ply, ".pcd": to_pcd, ".txt": to_txt,
-    ".xyz": to_xyz}
+    ".xyz": to_xyz, ".pts": to_pts}
 READERS: dict[str, Callable[[bytes], PointCloud]] = {
     ".las": from_las, ".laz": from_las, ".ply": from_ply, ".pcd": from_pcd, ".txt": from_txt,
-    ".xyz": from_txt}
-# Which keyword options each format takes (see encode_cloud).
-_OPTIONS = {".las": ("beam_angle_rad",), ".laz": ("beam_angle_rad",),
-            ".ply": ("precision",), ".pcd": ("precision",)}
+    ".xyz": from_txt, ".pts": from_pts}
+# Formats that carry only x y z and intensity.
+LOSSY_FORMATS = frozenset({".pts"})
 
 
 def check_output_path(path: str | os.PathLike) -> Path:
@@ -511,42 +561,42 @@ def write_atomic(path: str | os.PathLike, data: bytes) -> None:
         raise
 
 
-def encode_cloud(path: str | os.PathLike, cloud: PointCloud, *, precision: str = "single",
-                 beam_angle_rad: np.ndarray | None = None) -> bytes:
-    """The file contents of ``cloud`` in the format ``path``'s extension names (pure).
+def encode_cloud(path: str | os.PathLike, cloud: PointCloud, *, xyz_double: bool = False) -> bytes:
+    """The file contents of ``cloud`` in the format ``path``'s extension names.
 
     Args:
-      path: only its extension is used (``EXPORTERS`` lists them).
+      path: only its extension is used.
       cloud: the points.
-      precision: "single" or "double" x y z in PLY and PCD; LAS/LAZ (0.01 mm
-        grid) and TXT/XYZ (1 nm steps) do not depend on it.
-      beam_angle_rad: (n,) radians, lidar frame, per point: the LAS/LAZ scan
-        angle (ignored by the other formats, which have no such field).
-
-    Raises:
-      ValueError: unknown extension or precision.
+      xyz_double: PLY only: float64 coordinates instead of float32.
     """
     suffix = Path(path).suffix.lower()
     if suffix not in EXPORTERS:
         raise ValueError(f"unknown point-cloud format {suffix!r}; use one of {', '.join(EXPORTERS)}")
-    _check_precision(precision)
-    given = {"precision": precision, "beam_angle_rad": beam_angle_rad}
-    return EXPORTERS[suffix](cloud, **{k: given[k] for k in _OPTIONS.get(suffix, ())})
+    if suffix == ".ply" and xyz_double:
+        return to_ply(cloud, xyz_double=True)
+    return EXPORTERS[suffix](cloud)
 
 
 def write_cloud(path: str | os.PathLike, cloud: PointCloud, *, sidecar: dict | None = None,
-                precision: str = "single", beam_angle_rad: np.ndarray | None = None) -> None:
-    """Writes a cloud (and, if given, its sidecar ``<path>.json``), atomically.
+                xyz_double: bool = False) -> None:
+    """Writes a cloud (and, if given, its sidecar ``<path>.json``) as a unit.
 
-    The cloud is encoded fully in memory before anything touches the disk.
-    ``precision`` and ``beam_angle_rad`` are :func:`encode_cloud`'s.
+    The cloud is encoded fully in memory before anything touches the disk; the
+    files are then written and swapped in together by
+    :class:`plantsim.cloud.outputs.OutputSet` (the one writer: a failure or Ctrl-C
+    leaves the earlier files as they were). ``xyz_double`` asks for float64 PLY
+    coordinates (default float32).
     """
+    from plantsim.cloud.outputs import OutputSet
+
     path = check_output_path(path)
-    data = encode_cloud(path, cloud, precision=precision, beam_angle_rad=beam_angle_rad)
-    if sidecar is not None:
-        text = json.dumps(sidecar, indent=2, sort_keys=False, default=_json_default) + "\n"
-        write_atomic(sidecar_path(path), text.encode("utf-8"))
-    write_atomic(path, data)
+    data = encode_cloud(path, cloud, xyz_double=xyz_double)
+    with OutputSet() as outputs:
+        outputs.stage_bytes(path, data)
+        if sidecar is not None:
+            text = json.dumps(sidecar, indent=2, sort_keys=False, default=_json_default) + "\n"
+            outputs.stage_bytes(sidecar_path(path), text.encode("utf-8"))
+        outputs.commit()
 
 
 def sidecar_path(path: str | os.PathLike) -> Path:
@@ -555,7 +605,7 @@ def sidecar_path(path: str | os.PathLike) -> Path:
 
 
 def read_cloud(path: str | os.PathLike) -> PointCloud:
-    """Reads a point cloud written by plantsim (or any LAS/LAZ/PLY/PCD/TXT/XYZ with x y z)."""
+    """Reads a point cloud written by plantsim (or any LAS/LAZ/PLY/PCD/TXT with x y z)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READERS:

@@ -31,6 +31,7 @@ import numpy as np
 
 from plantsim.evaluation import metrics, traits
 from plantsim.plant.mesh import PlantMesh
+from plantsim.validation import SettingTypeError, check_bool
 
 logger = logging.getLogger(__name__)
 
@@ -70,6 +71,11 @@ class EvaluationOptions:
             raise ValueError(f"n_surface_samples must be an integer >= 1, got {self.n_surface_samples!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+        check_bool("evaluation", "traits", self.traits)
+        if self.trait_settings is not None and not isinstance(self.trait_settings,
+                                                              traits.TraitSettings):
+            raise SettingTypeError("evaluation.trait_settings must be a TraitSettings or None, "
+                                   f"got {type(self.trait_settings).__name__}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,7 +229,7 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
 
 def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
                   truth_path: str | Path | None = None) -> Evaluation:
-    """Measures a :class:`plantsim.pipeline.ScanResult` (its plant-class points).
+    """Measures a :class:`plantsim.scan.pipeline.ScanResult` (its plant-class points).
 
     Args:
         result: the scan.

@@ -4,7 +4,7 @@ A :class:`Sweep` is data: the plants, a grid of settings (each a name from
 :data:`SETTINGS` and the values to try) and the fixed configuration the grid
 overrides. :meth:`Sweep.runs` expands the grid (every plant x every combination);
 :func:`run_study` runs them in parallel on the local cores (one process per
-core, each casting on one thread), each run being :func:`plantsim.pipeline.run_scan`
+core, each casting on one thread), each run being :func:`plantsim.scan.pipeline.run_scan`
 followed by :func:`plantsim.evaluate.evaluate_scan`. Every run gives one flat row:
 its settings, wall time, CPU time, simulated rig time and every metric and trait
 error; :func:`rows_to_csv` writes them, :func:`pareto_front` finds the runs no other
@@ -39,6 +39,7 @@ from plantsim.scan.config import config_from_dict, merge
 from plantsim.evaluation.evaluate import EvaluationOptions, evaluate_scan
 from plantsim.resources import BUNDLED_PLANTS
 from plantsim.sensor.spec import lidar_preset
+from plantsim.validation import check_bool, check_int, check_optional, require_extra
 
 logger = logging.getLogger(__name__)
 
@@ -250,8 +251,44 @@ def _cores() -> int:
         return os.cpu_count() or 1
 
 
+def _run_one_remote(run: Mapping[str, Any], config_data: Mapping[str, Any],
+                    evaluation: EvaluationOptions, mesh: tuple[str, bytes] | None,
+                    traits: tuple[str, bytes] | None) -> dict[str, Any]:
+    """:func:`run_one` on a worker that may not see this machine's files.
+
+    ``mesh`` and ``traits`` are (file name, bytes) sent along: written to a
+    temporary folder on the worker, and the configuration pointed at it.
+    """
+    import tempfile
+
+    if mesh is None:
+        return run_one(run, config_data, evaluation)
+    with tempfile.TemporaryDirectory(prefix="plantsim-run-") as folder:
+        path = Path(folder) / mesh[0]
+        path.write_bytes(mesh[1])
+        if traits is not None:
+            (Path(folder) / traits[0]).write_bytes(traits[1])
+        data = merge(dict(config_data), {"plant": {"mesh": str(path)}})
+        return run_one(run, data, evaluation)
+
+
+def _mesh_payload(data: Mapping[str, Any]) -> tuple[tuple[str, bytes] | None, tuple[str, bytes] | None]:
+    from plantsim.evaluation.evaluate import truth_traits_path
+
+    mesh = (data.get("plant") or {}).get("mesh")
+    if not mesh:
+        return None, None  # a bundled plant: every worker has it
+    path = Path(mesh)
+    truth = truth_traits_path(path)
+    return (path.name, path.read_bytes()), (
+        (truth.name, truth.read_bytes()) if truth is not None else None)
+
+
 def run_study(sweep: Sweep, *, max_workers: int | None = None,
-              progress: Callable[[int, int, dict], None] | None = None) -> list[dict[str, Any]]:
+              progress: Callable[[int, int, dict], None] | None = None,
+              executor: concurrent.futures.Executor | None = None,
+              send_meshes: bool = False,
+              threads_per_run: int | None = None) -> list[dict[str, Any]]:
     """Runs every run of a sweep, in parallel, and returns the rows in run order.
 
     Every configuration is built (and so validated) before any run starts.
@@ -259,8 +296,19 @@ def run_study(sweep: Sweep, *, max_workers: int | None = None,
     Args:
         sweep: the runs.
         max_workers: processes (None: one per available core; 1 runs in this
-            process, one after the other).
+            process, one after the other). Ignored with ``executor``.
         progress: called with (runs done, runs total, the finished row).
+        executor: where the runs go instead of local processes: any
+            ``concurrent.futures.Executor``, e.g. a Dask cluster's
+            ``distributed.Client(address).get_executor()`` (see
+            :func:`dask_executor` and docs/cluster.md). It is not shut down.
+            Each run is a ``run_one`` call, so the rows are those of a local run.
+        send_meshes: send each mesh file (and its exact-traits JSON) with its
+            runs, for workers that do not share this machine's files; False:
+            workers read the mesh paths themselves (a shared file system).
+        threads_per_run: ray-casting threads of each run (the ``threads``
+            setting; None: what the configuration says, else all the
+            worker's cores). Set it to a worker's cores / runs per worker.
 
     Returns:
         One dict per run: ``run`` (index), ``plant``, the swept settings, then
@@ -274,10 +322,14 @@ def run_study(sweep: Sweep, *, max_workers: int | None = None,
     """
     if max_workers is not None and (not isinstance(max_workers, int) or max_workers < 1):
         raise ValueError(f"max_workers must be a positive integer or None, got {max_workers!r}")
+    check_bool("run_study", "send_meshes", send_meshes)
+    check_optional(check_int, "run_study", "threads_per_run", threads_per_run, minimum=1)
     runs = sweep.runs()
     datas = []
     for i, run in enumerate(runs):
         data = sweep.config_data(run)
+        if threads_per_run is not None:
+            data = merge(data, {"threads": threads_per_run})
         try:
             config_from_dict(data)
         except ValueError as exc:
@@ -291,7 +343,20 @@ def run_study(sweep: Sweep, *, max_workers: int | None = None,
         if progress is not None:
             progress(sum(r is not None for r in rows), len(runs), rows[i])
 
-    if workers <= 1:
+    if executor is not None:
+        order = sorted(range(len(runs)), key=lambda i: -_cost(runs[i]))
+        payloads = {}
+        futures = {}
+        for i in order:
+            mesh = (datas[i].get("plant") or {}).get("mesh")
+            if send_meshes and mesh not in payloads:
+                payloads[mesh] = _mesh_payload(datas[i])
+            sent = payloads.get(mesh, (None, None)) if send_meshes else (None, None)
+            futures[executor.submit(_run_one_remote, runs[i], datas[i], sweep.evaluation,
+                                    *sent)] = i
+        for future in concurrent.futures.as_completed(futures):
+            done(futures[future], future.result())
+    elif workers <= 1:
         for i, (run, data) in enumerate(zip(runs, datas)):
             done(i, run_one(run, data, sweep.evaluation))
     else:
@@ -304,6 +369,35 @@ def run_study(sweep: Sweep, *, max_workers: int | None = None,
             for future in concurrent.futures.as_completed(futures):
                 done(futures[future], future.result())
     return rows  # type: ignore[return-value]
+
+
+def dask_executor(scheduler: str, *, timeout_s: float = 30.0):
+    """A ``concurrent.futures`` executor on a Dask distributed cluster.
+
+    Args:
+        scheduler: the scheduler's address, e.g. ``tcp://10.0.0.5:8786``; or a
+            ``distributed.Client`` (e.g. of a ``LocalCluster``) to use as is.
+        timeout_s: how long to wait for the scheduler.
+
+    Returns:
+        (executor, client): close the client when done.
+
+    Raises:
+        MissingExtraError: dask.distributed is not installed (names the extra).
+        OSError: the scheduler cannot be reached (the address is in the message).
+    """
+    require_extra("distributed", "cluster", "running a study on a Dask cluster")
+    import distributed
+
+    if isinstance(scheduler, distributed.Client):
+        client = scheduler
+    else:
+        try:
+            client = distributed.Client(scheduler, timeout=timeout_s)
+        except (OSError, TimeoutError) as exc:
+            raise OSError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
+    # pure=False: two runs with equal arguments (repeats) are both run.
+    return client.get_executor(pure=False), client
 
 
 def _cost(run: Mapping[str, Any]) -> float:

@@ -3,7 +3,7 @@ it on the turntable.
 
 The result records ``T_turntable_mesh``: the rigid 4x4 transform from the mesh
 file's coordinates (scaled to metres) to the turntable frame (origin on the
-axis at the disk top, +Z up; see :mod:`plantsim.rig`).
+axis at the disk top, +Z up; see :mod:`plantsim.rig.geometry`).
 """
 
 from __future__ import annotations
@@ -102,7 +102,7 @@ def binary_stl_arrays(data: bytes) -> tuple[np.ndarray, np.ndarray] | None:
     if len(data) != 84 + 50 * n:
         return None
     records = np.frombuffer(data, dtype=_STL_RECORD, count=n, offset=84)
-    vertices = records["vertices"].reshape(-1, 3).astype(np.float64)
+    vertices = records["vertices"].astype(np.float64).reshape(-1, 3)  # one copy, not two
     return vertices, np.arange(3 * n, dtype=np.int64).reshape(-1, 3)
 
 
@@ -194,7 +194,7 @@ def clean_arrays(vertices: np.ndarray, faces: np.ndarray, *, source: str = "<mem
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise MeshError(f"{source}: face indices out of range 0..{len(vertices) - 1}")
     unique, inverse = unique_rows(vertices)
-    faces = inverse[faces].astype(np.int64)
+    faces = inverse[faces]
     tri = unique[faces]
     doubled_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     extent = float(np.ptp(unique, axis=0).max()) or 1.0
@@ -208,10 +208,11 @@ def clean_arrays(vertices: np.ndarray, faces: np.ndarray, *, source: str = "<mem
         raise MeshError(f"{source}: all {n_dropped} faces are degenerate (zero area)")
     if n_dropped:
         log.warning("%s: dropped %d degenerate faces of %d", source, n_dropped, n_dropped + len(faces))
-    used = np.unique(faces)
-    remap = np.full(len(unique), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return unique[used], remap[faces].astype(np.int32), n_dropped
+    # The vertices still used, in order (what np.unique(faces) gives, without its sort).
+    is_used = np.zeros(len(unique), dtype=bool)
+    is_used[faces] = True
+    remap = np.cumsum(is_used, dtype=np.int64) - 1
+    return unique[is_used], remap[faces].astype(np.int32), n_dropped
 
 
 def placement_transform(vertices_up: np.ndarray, placement: str) -> np.ndarray:

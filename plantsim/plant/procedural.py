@@ -647,7 +647,7 @@ def _finish(name: str, seed: int, params: MaizeParams | WheatParams, builder: _B
         "stem_diameter_m": float(np.mean([s["diameter_m"] for s in stems])),
         "stems": stems,
         "stem_distances_m": pairs,
-        # Two aggregates, named for what they are (plantsim.traits uses the same):
+        # Two aggregates, named for what they are (plantsim.evaluation.traits uses the same):
         # the mean over all pairs, and the mean distance to the nearest other stem.
         "mean_stem_distance_m": (float(np.mean([p["distance_m"] for p in pairs]))
                                  if len(stems) > 1 else None),

@@ -10,7 +10,7 @@ Frames (all right-handed, metres):
   positive theta counter-clockwise seen from above (right hand about +Z).
   Undoing the turntable is therefore ``Rz(-theta)``; the original ROS/Gazebo
   tool used ``Rz(+theta)`` and mirrored every plant.
-- ``lidar``: see :mod:`plantsim.sensor`. With tilt, yaw and roll at zero the
+- ``lidar``: see :mod:`plantsim.sensor.spec`. With tilt, yaw and roll at zero the
   sensor's +X (beam angle 0) points horizontally at the axis (base -X), its +Y
   (positive beam angles) points up (base +Z), and the scan plane is the
   vertical plane through the axis.

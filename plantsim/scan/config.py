@@ -17,6 +17,7 @@ from typing import Any
 
 from plantsim.turntable.options import TurntableOptions, turntable_options_from_dict
 from plantsim.errors import ConfigError
+from plantsim.validation import check_bool, check_optional, check_path, check_str
 from plantsim.plant.mesh import PLACEMENTS, UNITS_TO_M
 from plantsim.rig.geometry import RigGeometry
 from plantsim.scan.schedule import StepScan
@@ -53,6 +54,8 @@ class PlantOptions:
     areal_density_kg_m2: float = 0.3
 
     def __post_init__(self):
+        check_optional(check_path, "plant", "mesh", self.mesh)
+        check_str("plant", "bundled", self.bundled)
         if self.units not in UNITS_TO_M:
             raise ValueError(f"units must be one of {', '.join(UNITS_TO_M)}, got {self.units!r}")
         if self.up not in ("x", "y", "z"):
@@ -78,6 +81,11 @@ class OutputOptions:
     path: str = "scan.las"
     plant_only: bool = False
     raw: str | None = None
+
+    def __post_init__(self):
+        check_path("output", "path", self.path)
+        check_bool("output", "plant_only", self.plant_only)
+        check_optional(check_path, "output", "raw", self.raw)
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

@@ -1,8 +1,9 @@
-"""Step-and-shoot scans: turn the table to each angle, cast one LiDAR line.
+"""Scan schedules: which lines a scan takes, and (for a kinematic table) when.
 
-The raw record (:class:`RawScan`) keeps, per beam, the turntable angle, beam
-angle, range, status, what it hit and its time. Reconstruction into a point
-cloud is :mod:`plantsim.reconstruct`.
+:class:`StepScan` is step-and-shoot: the table turns by ``step_deg``, the LiDAR
+takes a line, and so on round ``sweep_deg``. A continuous scan's lines follow
+from ``[turntable] rpm`` and the sensor's scan period (see
+:mod:`plantsim.turntable.motion`); it uses ``sweep_deg`` alone.
 """
 
 from __future__ import annotations

@@ -1,15 +1,22 @@
 """An Embree ray-casting backend (``embreex``): the plant's triangles an order of magnitude faster.
 
-Embree traverses the turning mesh geoms (the plant) in float32; every hit is then
-recomputed in float64 on the triangle Embree found (Moller-Trumbore), so that
-distances and normals are MuJoCo's to rounding. The turning primitive geoms (the
-disk) and the fixed rig stay with MuJoCo, which is exact on primitives and cheap
-there. MuJoCo is the reference: the tests cast the same rays with both and
-compare hit for hit.
+Embree traverses the turning mesh geoms (the plant) in float32 on one thread;
+every hit's distance is then recomputed in float64 on the plane of the triangle
+Embree found (a plane per triangle, computed once), so that distances and normals
+are MuJoCo's to rounding (within 2e-14 m over 245,880 beams on the bundled
+maize). The turning primitive geoms (the disk) and the fixed rig stay with
+MuJoCo, which is exact on primitives and cheap there: on the same rig rebuilt
+without the plant when that has exactly the scene's other geoms, else on copies of
+the scene's model with the meshes hidden. MuJoCo is the reference: the tests cast
+the same rays with both and compare hit for hit.
 
-Only where float32 cannot tell (a ray grazing a triangle's edge within about
-1e-7 of its size) may the two pick different triangles or disagree about a hit;
-``scripts/bench_casters.py`` counts such rays.
+Precision: Embree decides hit or miss and which triangle in float32 (relative
+precision ~1.2e-7, i.e. ~1e-7 m over the 0.8 m scene). Only a ray grazing a
+triangle's edge or a silhouette within about that distance may pick a
+neighbouring triangle (the same geom, a distance differing by the neighbour's
+slope times ~1e-7 m) or flip between hit and miss; none did on the maize or on
+the tests' analytic shapes. ``scripts/bench_casters.py`` counts such rays and
+prints rays/s of both backends.
 """
 
 from __future__ import annotations
@@ -19,7 +26,8 @@ import copy
 import mujoco
 import numpy as np
 
-from plantsim.rig.scene import Scene
+from plantsim.errors import PlantSimError
+from plantsim.rig.scene import Scene, build_scene
 from plantsim.sensor.casting import _HIDDEN_GROUP, Hits, MujocoBackend, turning_geoms
 
 
@@ -47,45 +55,78 @@ class EmbreeBackend:
         turning = turning_geoms(scene)
         is_mesh = model.geom_type == mujoco.mjtGeom.mjGEOM_MESH
         cast_group = np.isin(model.geom_group, (0, 1, 2))
-        triangles, geom_of = [], []
-        for g in np.nonzero(turning & is_mesh & cast_group)[0]:
+        mesh_geoms = np.nonzero(turning & is_mesh & cast_group)[0]
+        vertices, faces, geom_of = [], [], []
+        n_vertices = 0
+        for g in mesh_geoms:
             mesh = model.geom_dataid[g]
             v0, nv = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
             f0, nf = model.mesh_faceadr[mesh], model.mesh_facenum[mesh]
-            vertices = model.mesh_vert[v0:v0 + nv].astype(np.float64) @ data.geom_xmat[g].reshape(3, 3).T \
-                + data.geom_xpos[g]
-            triangles.append(vertices[model.mesh_face[f0:f0 + nf]])
+            # MuJoCo stores a mesh re-centred (and re-oriented) in its geom frame: geom_xpos/xmat undo that.
+            vertices.append(model.mesh_vert[v0:v0 + nv].astype(np.float64) @ data.geom_xmat[g].reshape(3, 3).T
+                            + data.geom_xpos[g])
+            faces.append(model.mesh_face[f0:f0 + nf].astype(np.int64) + n_vertices)
             geom_of.append(np.full(nf, g, dtype=np.int32))
-        self.triangles = np.concatenate(triangles) if triangles else np.zeros((0, 3, 3))
+            n_vertices += nv
         self.geom_of_triangle = np.concatenate(geom_of) if geom_of else np.zeros(0, np.int32)
         self._embree = None
-        if len(self.triangles):
+        if len(self.geom_of_triangle):
+            vertices, faces = np.concatenate(vertices), np.concatenate(faces)
+            self.triangles = vertices[faces]
+            # embreex copies its input element by element: the indexed form (one copy per
+            # shared vertex, not three) builds about twice as fast.
             self._embree = rtcore_scene.EmbreeScene()
-            TriangleMesh(scene=self._embree, vertices=self.triangles.astype(np.float32))
-        # MuJoCo for the turning primitives (with the mesh geoms hidden) and for the fixed rig.
-        self._mujoco = MujocoBackend(scene, nthread=nthread)
-        primitives_only = copy.deepcopy(model)
-        primitives_only.geom_group[~turning | is_mesh] = _HIDDEN_GROUP
-        self._mujoco.replace_model("turning", primitives_only)
+            TriangleMesh(scene=self._embree, vertices=vertices.astype(np.float32), indices=faces.astype(np.int32))
+        else:
+            self.triangles = np.zeros((0, 3, 3))
+        # Each triangle's plane, float64, for the refinement of Embree's float32 hits:
+        # unit normal n (right hand over the vertex order, as MuJoCo's) and offset n . v0.
+        normal = np.cross(self.triangles[:, 1] - self.triangles[:, 0], self.triangles[:, 2] - self.triangles[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        self._plane_normal = normal
+        self._plane_offset = np.einsum("ij,ij->i", normal, self.triangles[:, 0])
+        # MuJoCo for the turning primitives and the fixed rig: on the same rig rebuilt without
+        # the plant when that gives the very same geoms (copying and batching a model that
+        # carries a big mesh costs ~1 us per face, three times over), else on copies of the
+        # scene's model with the meshes hidden.
+        lite = _without_meshes(scene, mesh_geoms)
+        if lite is not None:
+            lite_scene, self._geom_ids = lite
+            self._mujoco = MujocoBackend(lite_scene, nthread=nthread)
+        else:
+            self._geom_ids = None
+            self._mujoco = MujocoBackend(scene, nthread=nthread)
+            primitives_only = copy.deepcopy(model)
+            primitives_only.geom_group[~turning | is_mesh] = _HIDDEN_GROUP
+            self._mujoco.replace_model("turning", primitives_only)
+
+    def _full_ids(self, hits: Hits) -> Hits:
+        if self._geom_ids is None:
+            return hits
+        geom = np.where(hits.geom_id >= 0, self._geom_ids[np.maximum(hits.geom_id, 0)], -1).astype(np.int32)
+        return Hits(hits.dist_m, geom, hits.normal_base)
 
     def cast_fixed(self, origins, dirs, *, normals=False) -> Hits:
-        return self._mujoco.cast_fixed(origins, dirs, normals=normals)
+        return self._full_ids(self._mujoco.cast_fixed(origins, dirs, normals=normals))
 
     def cast_turning(self, origins, dirs, *, normals=False) -> Hits:
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
-        prim = self._mujoco.cast_turning(origins, dirs, normals=normals)
+        prim = self._full_ids(self._mujoco.cast_turning(origins, dirs, normals=normals))
         if self._embree is None or not len(origins):
             return prim
-        found = self._embree.run(origins.astype(np.float32), dirs.astype(np.float32), output=1)["primID"]
+        found = self._embree.run(origins.astype(np.float32), dirs.astype(np.float32))  # primID, -1: miss
         hit = found >= 0
+        tri = found[hit]
+        n_hit = self._plane_normal[tri]
         dist = np.full(len(origins), -1.0)
-        normal = np.zeros((len(origins), 3))
-        if hit.any():
-            tri = self.triangles[found[hit]]
-            t, n = _refine(origins[hit], dirs[hit], tri)
-            dist[hit] = t
-            normal[hit] = n
+        # Float64 distance to the plane of the triangle Embree found (Embree decided the inside test).
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dist[hit] = (self._plane_offset[tri] - np.einsum("ij,ij->i", n_hit, origins[hit])) \
+                / np.einsum("ij,ij->i", n_hit, dirs[hit])
+        if normals:
+            normal = np.zeros((len(origins), 3))
+            normal[hit] = n_hit
         geom = np.where(hit, self.geom_of_triangle[np.maximum(found, 0)], -1).astype(np.int32)
         mesh_nearer = (dist >= 0) & ((prim.dist_m < 0) | (dist < prim.dist_m))
         out_dist = np.where(mesh_nearer, dist, prim.dist_m)
@@ -94,17 +135,37 @@ class EmbreeBackend:
         return Hits(out_dist, out_geom, out_normal)
 
 
-def _refine(origins: np.ndarray, dirs: np.ndarray, tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Float64 ray-triangle distance (Moller-Trumbore, without the inside test: Embree decided it) and
-    the unit face normal."""
-    e1 = tri[:, 1] - tri[:, 0]
-    e2 = tri[:, 2] - tri[:, 0]
-    p = np.cross(dirs, e2)
-    det = np.einsum("ij,ij->i", e1, p)
-    s = origins - tri[:, 0]
-    q = np.cross(s, e1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.einsum("ij,ij->i", e2, q) / det
-    n = np.cross(e1, e2)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    return t, n
+
+def _without_meshes(scene: Scene, mesh_geoms: np.ndarray) -> tuple[Scene, np.ndarray] | None:
+    """The scene's rig rebuilt without a plant, if its geoms are exactly the scene's other geoms.
+
+    Returns:
+      (the rebuilt scene, (ngeom_lite,) int32 the scene's geom id of each of its geoms),
+      or None when the scene is not the plain rig plus turning meshes (then the caller
+      works on copies of the scene's own model).
+    """
+    full = scene.model
+    try:
+        lite = build_scene(scene.rig)
+    except PlantSimError:
+        return None
+    small = lite.model
+    kept = np.setdiff1d(np.arange(full.ngeom), mesh_geoms)
+    if small.ngeom != len(kept):
+        return None
+    names_full = [full.geom(int(g)).name for g in kept]
+    names_small = [small.geom(g).name for g in range(small.ngeom)]
+    if "" in names_small or sorted(names_small) != sorted(names_full) or len(set(names_small)) != len(names_small):
+        return None
+    ids = np.array([full.geom(name).id for name in names_small], dtype=np.int32)
+    data_full, data_small = mujoco.MjData(full), mujoco.MjData(small)
+    mujoco.mj_kinematics(full, data_full)
+    mujoco.mj_kinematics(small, data_small)
+    same = (np.array_equal(full.geom_type[ids], small.geom_type)
+            and np.array_equal(full.geom_size[ids], small.geom_size)
+            and np.array_equal(full.geom_group[ids], small.geom_group)
+            and np.array_equal(data_full.geom_xpos[ids], data_small.geom_xpos)
+            and np.array_equal(data_full.geom_xmat[ids], data_small.geom_xmat)
+            and np.array_equal(turning_geoms(scene)[ids], turning_geoms(lite))
+            and full.body(scene.lidar_body_id).name == small.body(lite.lidar_body_id).name)
+    return (lite, ids) if same else None

@@ -2,12 +2,13 @@
 
 :class:`Turntable` is the narrow interface; :class:`SimulatedTurntable` is the
 kinematic table of a simulated scan (exactly at every commanded angle), and
-:class:`ServoTurntable` is the physical rig's Dynamixel servo through
-:class:`plantsim.dynamixel.DynamixelTurntable` (or the emulator on a pty, which
-the driver cannot tell apart from a servo).
+:class:`plantsim.hardware.dynamixel.turntable.ServoTurntable` is the physical
+rig's Dynamixel servo (or the emulator on a pty, which the driver cannot tell
+apart from a servo). A scan drives such a table line by line
+(:mod:`plantsim.scan.session`).
 
 Angles are the turntable frame's (counter-clockwise from above about +Z, see
-:mod:`plantsim.rig`); on the servo, raw position 0 is angle 0, so the plant's
+:mod:`plantsim.rig.geometry`); on the servo, raw position 0 is angle 0, so the plant's
 0-degree face is wherever the servo's zero is (set Homing Offset to move it).
 """
 

@@ -1,10 +1,10 @@
 """Dynamixel Protocol 2.0 layer for the turntable servo (XM430-W350, XL430-W250).
 
-* :mod:`~plantsim.dynamixel.units`: pure register-unit <-> SI conversions.
-* :mod:`~plantsim.dynamixel.control_table`: the control tables, as data.
-* :mod:`~plantsim.dynamixel.protocol`: CRC, stuffing, packets, a streaming parser.
-* :mod:`~plantsim.dynamixel.emulator`: servos on a pty that the real SDK can open.
-* :mod:`~plantsim.dynamixel.driver`: :class:`DynamixelTurntable`, over ``dynamixel_sdk``.
+* :mod:`~plantsim.turntable.units`: pure register-unit <-> SI conversions.
+* :mod:`~plantsim.hardware.dynamixel.control_table`: the control tables, as data.
+* :mod:`~plantsim.hardware.dynamixel.protocol`: CRC, stuffing, packets, a streaming parser.
+* :mod:`~plantsim.hardware.dynamixel.emulator`: servos on a pty that the real SDK can open.
+* :mod:`~plantsim.hardware.dynamixel.driver`: :class:`DynamixelTurntable`, over ``dynamixel_sdk``.
 
 The SDK itself is imported only when a driver connects, so this package (and the
 emulator) work without the ``rig`` extra.

@@ -53,7 +53,7 @@ class ServoTurntable:
     Use :meth:`connect`, or wrap a connected, configured driver whose torque is on.
 
     Args:
-      driver: a connected :class:`~plantsim.dynamixel.DynamixelTurntable`.
+      driver: a connected :class:`~plantsim.hardware.dynamixel.DynamixelTurntable`.
       move_timeout_s: wall-clock limit of one move, s.
       tolerance_rad: accepted final position error of a move, rad (default two
         encoder ticks: the factory P-only gains can stop a tick short against friction).

@@ -1,0 +1,133 @@
+"""Rays per second of the ray-casting backends on the same rays, and whether they agree.
+
+    python scripts/bench_casters.py                                  # the bundled maize
+    python scripts/bench_casters.py ../shared/seed-rig/maize.stl --up y
+    python scripts/bench_casters.py --step-deg 1 --runs 5
+
+Casts the rays of an ideal step scan (every beam at every line's angle, turned
+into the turntable frame as :class:`plantsim.sensor.casting.Caster` does) against
+the turning geoms with each backend, and prints for each the median time and
+rays/s:
+
+- MuJoCo's ``mujoco.batch`` (the reference), with every core and with one thread;
+- :class:`plantsim.sensor.embree.EmbreeBackend` (Embree on the plant's triangles,
+  float64 refinement, MuJoCo on the turning primitives), and its parts;
+- raw Embree (``embreex``, float32, the triangles only, nothing else): the
+  throughput the issue's target ("scan phase within 2x of Embree") is set against.
+
+Then counts hit/miss, geom-id and distance disagreements between the two backends.
+Embree traverses in float32, so only rays that graze a triangle edge within about
+1e-7 of the scene's size may disagree; distances are refined in float64.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from plantsim.plant.mesh import load_plant
+from plantsim.resources import bundled_plant_path
+from plantsim.rig.geometry import RigGeometry
+from plantsim.rig.scene import build_scene
+from plantsim.scan.raw import BeamGrid
+from plantsim.scan.schedule import StepScan
+from plantsim.sensor.casting import MujocoBackend, rotate_z
+from plantsim.sensor.lidar import SimulatedLidar
+from plantsim.sensor.spec import URG_04LX_UG01
+
+
+def median_time(fn, runs):
+    times, result = [], None
+    for _ in range(runs):
+        t = time.perf_counter()
+        result = fn()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times), result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("mesh", type=Path, nargs="?", help="plant mesh (default: the bundled maize)")
+    parser.add_argument("--up", default="z", choices="xyz")
+    parser.add_argument("--units", default="m")
+    parser.add_argument("--step-deg", type=float, default=1.0)
+    parser.add_argument("--runs", type=int, default=5)
+    args = parser.parse_args()
+    try:
+        from plantsim.sensor.embree import EmbreeBackend, embree_available
+    except ImportError:
+        embree_available = lambda: False  # noqa: E731
+    if not embree_available():
+        sys.exit("bench_casters: embreex is not installed (pip install 'plantsim[fast]')")
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
+    path = args.mesh or bundled_plant_path("maize")
+    if not Path(path).is_file():
+        sys.exit(f"bench_casters: mesh not found: {path}")
+    plant = load_plant(path, units=args.units, up=args.up)
+    scene = build_scene(RigGeometry(), plant)
+    lidar, schedule = URG_04LX_UG01, StepScan(step_deg=args.step_deg)
+    caster = SimulatedLidar(scene, lidar, BeamGrid.of(lidar).beam_angles_rad()).caster
+    theta = np.repeat(schedule.angles_rad(), lidar.n_beams)
+    origins = rotate_z(np.tile(caster.origins_base, (schedule.n_lines, 1)), -theta)
+    dirs = rotate_z(np.tile(caster.dirs_base, (schedule.n_lines, 1)), -theta)
+    n = len(origins)
+    print(f"mesh {path}: {len(plant.faces):,} faces; {schedule.n_lines} lines x {lidar.n_beams} beams = "
+          f"{n:,} rays; {os.cpu_count()} cores; median of {args.runs} runs; "
+          f"load average {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+    rows = []
+    setup = {}
+    setup["mujoco"], mj = median_time(lambda: MujocoBackend(scene), 1)
+    setup["embree"], em = median_time(lambda: EmbreeBackend(scene), 1)
+    t_mj, ref = median_time(lambda: mj.cast_turning(origins, dirs), args.runs)
+    rows.append((f"MuJoCo batch, {mj.nthread} threads (reference)", t_mj))
+    mj1 = MujocoBackend(scene, nthread=1)
+    t_mj1, _ = median_time(lambda: mj1.cast_turning(origins, dirs), args.runs)
+    rows.append(("MuJoCo batch, 1 thread", t_mj1))
+    t_em, got = median_time(lambda: em.cast_turning(origins, dirs), args.runs)
+    rows.append(("EmbreeBackend.cast_turning (whole)", t_em))
+    t_emn, got_n = median_time(lambda: em.cast_turning(origins, dirs, normals=True), args.runs)
+    rows.append(("EmbreeBackend.cast_turning, normals", t_emn))
+    t_prim, _ = median_time(lambda: em._mujoco.cast_turning(origins, dirs), args.runs)
+    rows.append(("  part: MuJoCo on the turning primitives", t_prim))
+
+    raw = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene=raw, vertices=em.triangles.astype(np.float32))
+    o32, d32 = origins.astype(np.float32), dirs.astype(np.float32)
+    t_raw, _ = median_time(lambda: raw.run(o32, d32, output=1), args.runs)
+    rows.append(("raw Embree (float32 triangles only)", t_raw))
+    t_conv, _ = median_time(lambda: (origins.astype(np.float32), dirs.astype(np.float32)), args.runs)
+    rows.append(("  float64 -> float32 ray conversion", t_conv))
+
+    print(f"\nset-up: MuJoCo backend {setup['mujoco']:.3f} s, Embree backend {setup['embree']:.3f} s "
+          f"({len(em.triangles):,} triangles)")
+    print(f"\n{'backend':<44} {'median [s]':>10} {'M rays/s':>9}")
+    for name, t in rows:
+        print(f"{name:<44} {t:10.4f} {n / t / 1e6:9.2f}")
+    print(f"\nEmbree backend vs MuJoCo ({mj.nthread} threads): {t_mj / t_em:.2f}x faster; "
+          f"vs raw Embree: {t_em / t_raw:.2f}x slower (target: scan phase within 2x)")
+
+    hit_r, hit_g = ref.dist_m >= 0, got.dist_m >= 0
+    both = hit_r & hit_g
+    scale = float(scene.model.stat.extent)
+    ddist = np.abs(ref.dist_m[both] - got.dist_m[both])
+    print(f"\nagreement over {n:,} rays ({hit_r.sum():,} hits with MuJoCo):")
+    print(f"  hit/miss differ: {(hit_r != hit_g).sum()}")
+    print(f"  geom id differs: {(ref.geom_id[both] != got.geom_id[both]).sum()}")
+    print(f"  max |distance difference|: {ddist.max() if len(ddist) else 0.0:.3e} m "
+          f"(scene extent {scale:.3f} m; float32 relative eps 1.2e-7 -> {1.2e-7 * scale:.1e} m)")
+    ref_n = mj.cast_turning(origins, dirs, normals=True)
+    cos = np.abs(np.einsum("ij,ij->i", ref_n.normal_base[both], got_n.normal_base[both]))
+    print(f"  normals: min |cos| between backends {cos.min() if len(cos) else 1.0:.9f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,100 @@
+"""Pictures: the default scan drawn offscreen shows the plant; PNG encoding is valid."""
+
+import zlib
+
+import numpy as np
+import pytest
+
+from plantsim.cloud import render
+
+
+def _decode_png(data: bytes) -> np.ndarray:
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    pos, chunks = 8, {}
+    while pos < len(data):
+        n = int.from_bytes(data[pos:pos + 4], "big")
+        kind = data[pos + 4:pos + 8]
+        body = data[pos + 8:pos + 8 + n]
+        assert zlib.crc32(kind + body) == int.from_bytes(data[pos + 8 + n:pos + 12 + n], "big")
+        chunks[kind] = chunks.get(kind, b"") + body
+        pos += 12 + n
+    w, h = int.from_bytes(chunks[b"IHDR"][:4], "big"), int.from_bytes(chunks[b"IHDR"][4:8], "big")
+    raw = np.frombuffer(zlib.decompress(chunks[b"IDAT"]), np.uint8).reshape(h, 1 + 3 * w)
+    assert (raw[:, 0] == 0).all()
+    return raw[:, 1:].reshape(h, w, 3)
+
+
+def test_png_round_trip():
+    image = np.random.default_rng(0).integers(0, 256, (7, 5, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(_decode_png(render.png_bytes(image)), image)
+
+
+def test_error_colours_run_blue_to_red():
+    rgba = render.error_colours(np.array([0.0, 0.5, 1.0, 3.0]), 1.0)
+    assert rgba[0, 2] > rgba[0, 0] and rgba[2, 0] > rgba[2, 2]
+    np.testing.assert_array_equal(rgba[2], rgba[3])  # clipped beyond the maximum
+
+
+@pytest.fixture(scope="module")
+def scan():
+    from plantsim.cloud.reconstruct import reconstruct
+    from plantsim.plant.mesh import load_plant
+    from plantsim.resources import bundled_plant_path
+    from plantsim.rig.geometry import RigGeometry
+    from plantsim.rig.scene import build_scene
+    from plantsim.scan.pipeline import step_and_shoot
+    from plantsim.scan.schedule import StepScan
+    from plantsim.sensor.spec import URG_04LX_UG01
+
+    plant, rig = load_plant(bundled_plant_path("maize")), RigGeometry()
+    cloud = reconstruct(step_and_shoot(build_scene(rig, plant), URG_04LX_UG01,
+                                       StepScan(step_deg=30)))
+    return cloud, plant, rig, URG_04LX_UG01
+
+
+def _render_or_skip(fn, *args, **kwargs):
+    try:
+        return fn(*args, **kwargs)
+    except render.RenderError as exc:
+        pytest.skip(f"no offscreen OpenGL here: {exc}")
+
+
+def _green(image):
+    r, g, b = (image[..., i].astype(int) for i in range(3))
+    return (g > 120) & (g > r + 40) & (g > b + 40)
+
+
+def test_default_scan_picture_shows_the_plant(scan, tmp_path):
+    cloud, plant, rig, lidar = scan
+    view = render.View(width=320, height=240)
+    with_plant = _render_or_skip(render.render_cloud, cloud, rig, plant, lidar=lidar, view=view)
+    assert with_plant.shape == (240, 320, 3) and with_plant.dtype == np.uint8
+    assert with_plant.std() > 10  # not a uniform picture
+    assert _green(with_plant).mean() > 0.01  # the plant (mesh and points) is in view
+    # Without the plant and its points, the green is gone: it was the plant.
+    empty = _render_or_skip(render.render_scene, rig, None, view=view)
+    assert _green(empty).mean() < 0.1 * _green(with_plant).mean()
+    # The fan is drawn in its own colour.
+    red = (with_plant[..., 0] > 150) & (with_plant[..., 1] < 80) & (with_plant[..., 2] < 80)
+    assert red.sum() > 50
+    png = tmp_path / "rig.png"
+    png.write_bytes(render.png_bytes(with_plant))
+    np.testing.assert_array_equal(_decode_png(png.read_bytes()), with_plant)
+
+
+def test_error_picture_and_cli(scan, tmp_path):
+    from plantsim.cli.app import main
+    from plantsim.cloud.export import write_cloud
+
+    cloud, plant, rig, _ = scan
+    data = _render_or_skip(render.error_picture, cloud, plant, rig,
+                           view=render.View(width=160, height=120))
+    assert _decode_png(data).shape == (120, 160, 3)
+    write_cloud(tmp_path / "scan.ply", cloud)
+    out = tmp_path / "pic.png"
+    assert main(["render", str(tmp_path / "scan.ply"), "-o", str(out), "--width", "160",
+                 "--height", "120"]) == 0
+    assert _decode_png(out.read_bytes()).std() > 10
+    with pytest.raises(ValueError, match="colour must be 'class' or 'error', got 'rgb'"):
+        render.render_cloud(cloud, rig, plant, colour="rgb")
+    assert main(["render", "-o", str(tmp_path / "x.jpg")]) == 2
