@@ -74,7 +74,7 @@ def test_write_is_atomic_and_leaves_nothing_on_failure(tmp_path, cloud, monkeypa
     assert json.loads((tmp_path / "scan.ply.json").read_text()) == {"a": 1}
     before = out.read_bytes()
 
-    def boom(_cloud, **_options):
+    def boom(_cloud):
         raise OverflowError("coordinate does not fit")
 
     monkeypatch.setitem(pio.EXPORTERS, ".ply", boom)

@@ -25,21 +25,7 @@ for evaluating clouds made elsewhere.
 Every format carries the same per-point fields: x, y, z (turntable frame,
 metres), classification (what the beam hit; :data:`CLASSIFICATION`), intensity,
 beam_index, scan_index, turntable_angle_rad, range_m and time (the beam's time
-in seconds; LAS GPS time). Each format names and types them the way the tools
-that read it expect (checked against Open3D, PCL and CloudCompare's readers):
-
-- LAS/LAZ: point format 6, intensity uint16 (0..65535 for 0..1), the rest as
-  extra bytes; one return per pulse (return number = number of returns = 1),
-  the WKT global-encoding bit set (LAS 1.4 R15 requires it for formats 6-10).
-- PLY: x y z float32 (``precision="double"`` for float64), ``intensity``
-  float32, the other fields prefixed ``scalar_`` (CloudCompare loads every
-  ``scalar_*`` property as a scalar field without asking, and strips the
-  prefix) in types Open3D's tensor reader keeps (uint8, uint16, int32, float64).
-- PCD: x y z float32 (PCL's ``PointXYZ``), ``intensity`` float32
-  (``PointXYZI``), the class code as uint32 ``label`` (``PointXYZL``).
-- TXT: a ``//`` header line CloudCompare reads (``intensity`` and ``scalar_*``
-  columns become scalar fields). XYZ: the same columns with no header line, so
-  Open3D (which reads the first three columns) accepts it.
+in seconds; LAS GPS time).
 """
 
 from __future__ import annotations
@@ -63,8 +49,6 @@ _CLASS_OF_CODE = {code: cls for cls, code in CLASSIFICATION.items()}
 
 # LAS coordinate resolution: 0.01 mm, ten times finer than the 0.1 mm asked for.
 LAS_SCALE_M = 1e-5
-# LAS 1.4 R15 table 16: point formats 6-10 store the scan angle as int16 in 0.006 degree steps.
-LAS_SCAN_ANGLE_STEP_DEG = 0.006
 
 # Name, numpy dtype, PCD type/size letter: the scalar fields after x, y, z.
 # Intensity is received power in [0, 1] as float32 (PCL's PointXYZI field).
@@ -77,36 +61,23 @@ _FIELDS = (
     ("range_m", np.float64, "F"),
     ("time", np.float64, "F"),
 )
-_FIELD_NAMES = tuple(name for name, _ in _FIELDS)
 
 
 def _columns(cloud: PointCloud) -> dict[str, np.ndarray]:
-    """plantsim's per-point fields as columns (``_FIELDS`` order and dtypes)."""
     codes = np.zeros(256, dtype=np.uint8)
     for cls, code in CLASSIFICATION.items():
         codes[int(cls)] = code
     intensity = (np.zeros(len(cloud), np.float32) if cloud.intensity is None
                  else np.clip(cloud.intensity, 0.0, 1.0).astype(np.float32))
     return {
-        "intensity": intensity,
         "classification": codes[cloud.hit_class],
+        "intensity": intensity,
         "beam_index": cloud.beam_index.astype(np.uint16),
         "scan_index": cloud.scan_index.astype(np.uint32),
         "turntable_angle_rad": cloud.turntable_angle_rad.astype(np.float64),
         "range_m": cloud.range_m.astype(np.float64),
         "time": cloud.time_s.astype(np.float64),
     }
-
-
-# Names other tools (and plantsim's older files) use for plantsim's fields.
-_ALIASES = {"label": "classification", "gps_time": "time", "scalar_intensity": "intensity"}
-
-
-def _canonical(name: str) -> str:
-    name = _ALIASES.get(name, name)
-    if name.startswith("scalar_") and name[len("scalar_"):] in _FIELD_NAMES:
-        return name[len("scalar_"):]
-    return name
 
 
 def _cloud_from_columns(xyz: np.ndarray, cols: dict[str, np.ndarray]) -> PointCloud:
@@ -126,43 +97,7 @@ def _cloud_from_columns(xyz: np.ndarray, cols: dict[str, np.ndarray]) -> PointCl
     )
 
 
-def _check_precision(precision: str) -> np.dtype:
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-    return np.dtype(np.float32 if precision == "single" else np.float64)
-
-
-def _rows(cloud: PointCloud, layout: tuple[tuple[str, str, np.dtype], ...],
-          xyz_dtype: np.dtype) -> np.ndarray:
-    """A little-endian structured array: x y z, then ``layout``'s (file name, plantsim name, dtype)."""
-    dtype = np.dtype([(a, xyz_dtype) for a in "xyz"] + [(f, t) for f, _, t in layout])
-    rows = np.empty(len(cloud), dtype=dtype.newbyteorder("<"))
-    for i, axis in enumerate("xyz"):
-        rows[axis] = cloud.points_turntable[:, i]
-    cols = _columns(cloud)
-    for file_name, name, t in layout:
-        values = cols[name]
-        if np.dtype(t).kind in "ui" and len(values) and values.max() > np.iinfo(t).max:
-            raise OverflowError(f"{name} reaches {values.max()}, more than the file's "
-                                f"{np.dtype(t).name} column {file_name!r} holds")
-        rows[file_name] = values
-    return rows
-
-
-def _xyz_from_rows(rows: np.ndarray) -> np.ndarray:
-    names = rows.dtype.names
-    missing = [a for a in "xyz" if a not in names]
-    if missing:
-        raise ValueError(f"the file has no {', '.join(missing)} field; found {', '.join(names)}")
-    return np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
-
-
-def _from_rows(rows: np.ndarray) -> PointCloud:
-    return _cloud_from_columns(_xyz_from_rows(rows),
-                               {n: rows[n] for n in rows.dtype.names if n not in "xyz"})
-
-
-# --- LAS 1.4 / LAZ (laspy; LAZ through lazrs) ---------------------------------
+# --- LAS 1.4 (laspy) -------------------------------------------------------
 
 _LAS_EXTRA = (("beam_index", np.uint16, "beam within its scan line"),
               ("scan_index", np.uint32, "scan line (turntable step)"),
@@ -239,23 +174,6 @@ def to_laz(cloud: PointCloud) -> bytes:
     return buffer.getvalue()
 
 
-def _las_scan_angle(beam_angle_rad: np.ndarray, n: int) -> np.ndarray:
-    angle = np.asarray(beam_angle_rad, dtype=np.float64)
-    if angle.shape != (n,):
-        raise ValueError(f"beam_angle_rad must have shape ({n},), one per point, got {angle.shape}")
-    steps = np.round(np.rad2deg(angle) / LAS_SCAN_ANGLE_STEP_DEG)
-    limit = np.iinfo(np.int16).max
-    if n and np.abs(steps).max() > limit:
-        raise ValueError(f"beam_angle_rad must lie within +-{limit * LAS_SCAN_ANGLE_STEP_DEG:.1f} "
-                         f"degrees (LAS scan angle), got {np.rad2deg(np.abs(angle).max()):.1f}")
-    return steps.astype(np.int16)
-
-
-def to_laz(cloud: PointCloud, *, beam_angle_rad: np.ndarray | None = None) -> bytes:
-    """LAZ: :func:`to_las` compressed with lazrs (lossless, about a third of the size)."""
-    return to_las(cloud, beam_angle_rad=beam_angle_rad, compress=True)
-
-
 def from_las(data: bytes) -> PointCloud:
     """Reads LAS or LAZ (any point format with x y z; plantsim's extra bytes if present)."""
     import laspy
@@ -298,10 +216,6 @@ def _structured(cloud: PointCloud, xyz_dtype, rename: dict[str, str] | None = No
         rows[rename.get(name, name)] = values
     return rows
 
-    Args:
-      cloud: the points.
-      precision: "single" (float32 x y z, 0.06 um steps at 1 m; what PCL's
-        ``PointXYZ`` and most viewers expect) or "double" (float64).
 
 def to_ply(cloud: PointCloud, *, xyz_double: bool = False) -> bytes:
     """Binary little-endian PLY.
@@ -374,9 +288,8 @@ def to_pcd(cloud: PointCloud) -> bytes:
                        types={"classification": np.uint32})
     names = rows.dtype.names
     sizes = " ".join(str(rows.dtype[n].itemsize) for n in names)
-    types = " ".join({"f": "F", "u": "U", "i": "I"}[rows.dtype[n].kind] for n in names)
-    header = (f"# .PCD v0.7 - plantsim point cloud, turntable frame, metres; "
-              f"label: 4 plant, 64 turntable, 65 rig\nVERSION 0.7\n"
+    types = " ".join("F" if rows.dtype[n].kind == "f" else "U" for n in names)
+    header = (f"# .PCD v0.7 - plantsim point cloud, turntable frame, metres\nVERSION 0.7\n"
               f"FIELDS {' '.join(names)}\nSIZE {sizes}\nTYPE {types}\n"
               f"COUNT {' '.join('1' for _ in names)}\nWIDTH {len(rows)}\nHEIGHT 1\n"
               f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(rows)}\nDATA binary\n")
@@ -387,9 +300,7 @@ def from_pcd(data: bytes) -> PointCloud:
     """Reads a binary or ASCII PCD v0.7 with at least x y z."""
     header, offset = {}, 0
     while True:
-        end = data.find(b"\n", offset)
-        if end < 0:
-            raise ValueError("not a PCD file (no DATA line in the header)")
+        end = data.index(b"\n", offset)
         line = data[offset:end].decode("ascii", "replace").strip()
         offset = end + 1
         if not line or line.startswith("#"):
@@ -399,16 +310,12 @@ def from_pcd(data: bytes) -> PointCloud:
         if key.upper() == "DATA":
             break
     names, sizes, types = header["FIELDS"], header["SIZE"], header["TYPE"]
-    counts = header.get("COUNT", ["1"] * len(names))
-    if any(c != "1" for c in counts):
-        raise ValueError(f"PCD fields with COUNT > 1 are not supported (COUNT {' '.join(counts)})")
-    dtype = np.dtype([(n, f"<{ {'F': 'f', 'U': 'u', 'I': 'i'}[t] }{s}")
-                      for n, s, t in zip(names, sizes, types)])
+    dtype = np.dtype([(n, f"<{ {'F': 'f', 'U': 'u', 'I': 'i'}[t] }{s}") for n, s, t in zip(names, sizes, types)])
     n = int(header["POINTS"][0])
     if header["DATA"][0] == "binary":
         rows = np.frombuffer(data, dtype=dtype, count=n, offset=offset)
     elif header["DATA"][0] == "ascii":
-        table = np.loadtxt(io.BytesIO(data[offset:]), ndmin=2, dtype=np.float64)
+        table = np.loadtxt(io.BytesIO(data[offset:]), ndmin=2)
         rows = np.empty(len(table), dtype=dtype)
         for i, name in enumerate(names):
             rows[name] = table[:, i]
@@ -417,29 +324,7 @@ def from_pcd(data: bytes) -> PointCloud:
     return _from_rows(rows)
 
 
-# --- TXT (CloudCompare header) / XYZ (no header; Open3D) ------------------
-
-# Column names CloudCompare's ASCII reader maps by itself: x y z as coordinates,
-# "intensity" and anything containing "scalar" as scalar fields. Without them it
-# guesses small integer columns to be RGB.
-_TXT_NAMES = ("x", "y", "z") + tuple(
-    n if n == "intensity" else f"scalar_{n}" for n in _FIELD_NAMES)
-_TXT_FORMATS = {"intensity": "%.9g", "classification": "%d", "beam_index": "%d",
-                "scan_index": "%d", "turntable_angle_rad": "%.17g", "range_m": "%.17g",
-                "time": "%.17g"}
-
-
-def _table_text(cloud: PointCloud) -> bytes:
-    cols = _columns(cloud)
-    # Integers go through int64 so "%d" never sees a float; floats keep full precision.
-    table = [cloud.points_turntable[:, i] for i in range(3)] + [cols[n] for n in _FIELD_NAMES]
-    fmt = ["%.9f"] * 3 + [_TXT_FORMATS[n] for n in _FIELD_NAMES]
-    line = " ".join(fmt) + "\n"
-    buffer = io.StringIO()
-    for row in zip(*(c.tolist() for c in table)):
-        buffer.write(line % row)
-    return buffer.getvalue().encode("ascii")
-
+# --- TXT / XYZ (ASCII columns, CloudCompare-style header) ------------------
 
 def to_txt(cloud: PointCloud) -> bytes:
     """ASCII columns: x y z (nanometre resolution) and the scalar fields.
