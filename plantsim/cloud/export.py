@@ -84,7 +84,9 @@ def _cloud_from_columns(xyz: np.ndarray, cols: dict[str, np.ndarray]) -> PointCl
     classification = np.asarray(cols["classification"], dtype=np.int64)
     hit_class = np.array([_CLASS_OF_CODE.get(int(c), HitClass.NONE) for c in range(256)],
                          dtype=np.uint8)[classification]
-    intensity = np.asarray(cols["intensity"], dtype=np.float32)
+    raw = np.asarray(cols["intensity"])
+    # Integer intensity is plantsim 0.2's 0..65535 scale (PLY/PCD uint16 columns).
+    intensity = (raw / 65535 if raw.dtype.kind in "ui" else raw).astype(np.float32)
     return PointCloud(
         points_turntable=np.ascontiguousarray(xyz, dtype=np.float64),
         hit_class=hit_class,
@@ -268,10 +270,11 @@ def from_ply(data: bytes) -> PointCloud:
 def _from_rows(rows: np.ndarray) -> PointCloud:
     xyz = np.stack([rows["x"], rows["y"], rows["z"]], axis=1).astype(np.float64)
     names = rows.dtype.names
-    aliases = {"classification": ("classification", "label")}
+    # "scalar_" names reach a PCD when PCL converts plantsim's PLY (pcl_ply2pcd).
+    aliases = {"classification": ("classification", "label", "scalar_classification")}
     cols = {}
     for name, t, _ in _FIELDS:
-        found = [a for a in aliases.get(name, (name,)) if a in names]
+        found = [a for a in aliases.get(name, (name, _PLY_PREFIX + name)) if a in names]
         cols[name] = rows[found[0]] if found else np.zeros(len(rows), t)
     return _cloud_from_columns(xyz, cols)
 
@@ -336,7 +339,8 @@ def to_txt(cloud: PointCloud) -> bytes:
     cols = _columns(cloud)
     names = ["X", "Y", "Z"] + ["Intensity" if n == "intensity" else f"SF_{n}" for n in cols]
     table = np.column_stack([cloud.points_turntable] + [cols[n].astype(np.float64) for n in cols])
-    fmt = ["%.9f"] * 3 + ["%d", "%.9g", "%d", "%d"] + ["%.12g"] * 3
+    # %.17g: angle, range and time come back bit for bit, as from the binary formats.
+    fmt = ["%.9f"] * 3 + ["%d", "%.9g", "%d", "%d"] + ["%.17g"] * 3
     buffer = io.BytesIO()
     buffer.write(("//" + " ".join(names) + "\n").encode("ascii"))
     np.savetxt(buffer, table, fmt=fmt, delimiter=" ")
@@ -367,7 +371,9 @@ def to_pts(cloud: PointCloud) -> bytes:
 
 
 def from_pts(data: bytes) -> PointCloud:
-    table = np.loadtxt(io.BytesIO(data), skiprows=1, ndmin=2)
+    body = data.split(b"\n", 1)[1] if b"\n" in data else b""
+    # An empty cloud is the count line alone: no rows to count columns in.
+    table = np.loadtxt(io.BytesIO(body), ndmin=2) if body.strip() else np.zeros((0, 4))
     names = ["x", "y", "z", "intensity", "red", "green", "blue"][:table.shape[1]]
     rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
     for i, name in enumerate(names):
@@ -381,9 +387,19 @@ _TXT_COLUMNS = ["x", "y", "z"] + [name for name, _, _ in _FIELDS]
 def from_txt(data: bytes) -> PointCloud:
     """Reads ASCII columns: named by a ``//`` or ``#`` header, else plantsim's order."""
     first = data.split(b"\n", 1)[0].decode("ascii", "replace")
-    table = np.loadtxt(io.BytesIO(data), comments=("//", "#"), ndmin=2)
-    if first.startswith(("//", "#")):
+    header = first.startswith(("//", "#"))
+    body = data.split(b"\n", 1)[1] if header and b"\n" in data else (b"" if header else data)
+    if header:
         names = [n[3:] if n.startswith("SF_") else n.lower() for n in first.lstrip("/#").split()]
+    # An empty cloud has no rows to count columns in: take the header's (or x y z).
+    table = (np.loadtxt(io.BytesIO(body), comments=("//", "#"), ndmin=2) if body.strip()
+             else np.zeros((0, len(names) if header else 3)))
+    if header:
+        intensity_at = names.index("intensity") if "intensity" in names else None
+        if intensity_at is not None and len(table):
+            values = table[:, intensity_at]
+            if values.max() > 1 and (values == np.round(values)).all():
+                table[:, intensity_at] = values / 65535  # plantsim 0.2 wrote 0..65535 integers
     elif table.shape[1] == len(_TXT_COLUMNS):
         names = list(_TXT_COLUMNS)
     else:
