@@ -155,9 +155,9 @@ def _pcd_rows(data: bytes) -> np.ndarray:
 
 
 def test_cloudcompare_header_names_scalar_fields_not_colours(cloud):
-    """CloudCompare maps ``//`` header names to columns; ``SF_`` is a scalar field."""
+    """CloudCompare maps ``//`` header names to columns; a name with ``Scalar`` is a scalar field."""
     header = pio.to_txt(cloud).split(b"\n", 1)[0].decode()
     names = header[2:].split()
     assert names[:3] == ["X", "Y", "Z"]
-    assert all(n == "Intensity" or n.startswith("SF_") for n in names[3:])
+    assert all(n == "Intensity" or n.startswith("Scalar_") for n in names[3:])
     assert not {"R", "G", "B", "Red", "Green", "Blue"} & set(names)

@@ -10,7 +10,7 @@ the other fields named ``scalar_<name>`` so CloudCompare loads them as scalar
 fields (Open3D's tensor reader keeps every property). PCD has float32 x y z and
 intensity (PCL's ``PointXYZI``) and a uint32 ``label`` holding the class code
 (``PointXYZL``). TXT starts with a ``//X Y Z ...`` line that CloudCompare takes
-as column names (``SF_`` ones as scalar fields, never colours); XYZ is the same
+as column names (``Scalar_`` ones as scalar fields, never colours); XYZ is the same
 columns without a header (Open3D reads x y z from it); PTS is a point count and
 ``x y z intensity`` (Open3D and CloudCompare read both).
 
@@ -332,12 +332,15 @@ def from_pcd(data: bytes) -> PointCloud:
 def to_txt(cloud: PointCloud) -> bytes:
     """ASCII columns: x y z (nanometre resolution) and the scalar fields.
 
-    The first line, ``//X Y Z Intensity SF_classification ...``, names the
+    The first line, ``//X Y Z Intensity Scalar_classification ...``, names the
     columns for CloudCompare (``SF`` names are scalar fields, never colours);
     Open3D's ``xyz`` reader skips it and reads x y z from every other line.
     """
     cols = _columns(cloud)
-    names = ["X", "Y", "Z"] + ["Intensity" if n == "intensity" else f"SF_{n}" for n in cols]
+    # CloudCompare's ASCII reader takes a column whose name contains "SCALAR" (or
+    # "INTENSITY") as a scalar field; others fall to a guess that can read small
+    # integer columns as RGB.
+    names = ["X", "Y", "Z"] + ["Intensity" if n == "intensity" else f"Scalar_{n}" for n in cols]
     table = np.column_stack([cloud.points_turntable] + [cols[n].astype(np.float64) for n in cols])
     # %.17g: angle, range and time come back bit for bit, as from the binary formats.
     fmt = ["%.9f"] * 3 + ["%d", "%.9g", "%d", "%d"] + ["%.17g"] * 3
@@ -390,7 +393,8 @@ def from_txt(data: bytes) -> PointCloud:
     header = first.startswith(("//", "#"))
     body = data.split(b"\n", 1)[1] if header and b"\n" in data else (b"" if header else data)
     if header:
-        names = [n[3:] if n.startswith("SF_") else n.lower() for n in first.lstrip("/#").split()]
+        names = [n.split("_", 1)[1] if n.startswith(("Scalar_", "SF_")) else n.lower()
+                 for n in first.lstrip("/#").split()]
     # An empty cloud has no rows to count columns in: take the header's (or x y z).
     table = (np.loadtxt(io.BytesIO(body), comments=("//", "#"), ndmin=2) if body.strip()
              else np.zeros((0, len(names) if header else 3)))
