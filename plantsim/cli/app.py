@@ -237,6 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_study_command(sub)
     add_rig_commands(sub)
+    __import__("plantsim.cli.traits", fromlist=["x"]).add_traits_command(sub)
     return parser
 
 

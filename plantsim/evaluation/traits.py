@@ -833,7 +833,8 @@ def traits_from_truth(truth: Mapping[str, Any]) -> PlantTraits:
     if not isinstance(truth, Mapping):
         raise ValueError(f"truth must be a dict parsed from the traits JSON, got {type(truth).__name__}")
     if "height_m" not in truth:
-        raise ValueError(f"truth lacks 'height_m'; keys present: {sorted(truth)}")
+        logger.warning("truth lacks 'height_m' (keys present: %s): height is not compared",
+                       sorted(truth))
     stems = tuple(
         Stem(
             index=int(st.get("index", i)),
@@ -871,6 +872,12 @@ def traits_from_truth(truth: Mapping[str, Any]) -> PlantTraits:
         leaf_length_m=max((lf.length_m for lf in leaves), default=_num(truth, "leaf_length_m")),
         convex_hull_volume_m3=_num(truth, "convex_hull_volume_m3"),
         projected_area_xy_m2=_num(truth, "projected_area_xy_m2"),
+        stem_count=len(stems),
+        stem_height_m=max((_num(st, "height_m") for st in truth.get("stems") or ()), default=_NAN),
+        leaf_count=len(leaves),
+        leaf_area_m2=_num(truth, "leaf_area_m2"),
+        leaf_lengths_m=tuple(lf.length_m for lf in leaves),
+        leaf_widths_m=tuple(lf.width_m for lf in leaves),
     )
     for key, ours in (
         ("stem_diameter_m", traits.stem_diameter_m),
@@ -956,6 +963,8 @@ _SCALARS = (
     ("leaf_length_m", "m"),
     ("convex_hull_volume_m3", "m^3"),
     ("projected_area_xy_m2", "m^2"),
+    ("stem_height_m", "m"),
+    ("leaf_area_m2", "m^2"),
 )
 
 
@@ -989,6 +998,10 @@ def compare_traits(estimate: PlantTraits, reference: PlantTraits) -> TraitCompar
             ref = reference.stems[j]
             errors.append(trait_error(f"stem[{ref.index}].diameter_m", estimate.stems[i].diameter_m, ref.diameter_m))
             errors.append(trait_error(f"stem[{ref.index}].center_offset_m", cost[i, j], 0.0))
+    for name in ("stem_count", "leaf_count"):
+        s_val, r_val = getattr(estimate, name), getattr(reference, name)
+        if r_val:
+            errors.append(trait_error(name, s_val, r_val, unit="1"))
     return TraitComparison(
         errors=tuple(errors),
         n_stems=(len(estimate.stems), len(reference.stems)),
