@@ -8,7 +8,7 @@ import pytest
 from plantsim.evaluation import metrics, segmentation, traits
 from plantsim.plant.mesh import find_stem_base, plant_from_arrays
 from plantsim.plant.procedural import make_maize, make_wheat
-from plantsim.plant.rigfit import fit_rig, rig_fit_warnings
+from plantsim.rig.fit import fit_rig, rig_fit_warnings
 from plantsim.rig.geometry import RigGeometry
 from plantsim.sensor.spec import PRESETS
 

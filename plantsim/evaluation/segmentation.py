@@ -405,6 +405,8 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     parent[parent == np.arange(n_pieces)] = -1
     piece_dist = np.zeros(n_pieces)
     np.maximum.at(piece_dist, piece, dist)
+    spread = np.zeros(n_pieces)  # horizontal reach of each piece from its centroid
+    np.maximum.at(spread, piece, np.hypot(*(nodes[:, :2] - centroid[piece, :2]).T))
     children: list[list[int]] = [[] for _ in range(n_pieces)]
     for c in np.flatnonzero(parent >= 0):
         children[parent[c]].append(int(c))
@@ -430,13 +432,14 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
             kids = [k for k in children[cur] if is_stem_piece[k] < 0]
             if not kids:
                 break
-            # Extrapolate the axis (a leaning stem) by the last step.
-            guess = axis_xy + (axis_xy - prev_xy)
-            off = [float(np.linalg.norm(centroid[k, :2] - guess)) for k in kids]
+            # The axis follows a leaning stem, but only through compact pieces: a
+            # piece holding a leaf's base has its centroid pulled off the axis.
+            off = [float(np.linalg.norm(centroid[k, :2] - axis_xy)) for k in kids]
             best = int(np.argmin(off))
-            if off[best] > reach or centroid[kids[best], 2] <= centroid[cur, 2]:
+            if off[best] > reach or centroid[kids[best], 2] <= centroid[cur, 2] - bin_w:
                 break
-            prev_xy, axis_xy = axis_xy, centroid[kids[best], :2].copy()
+            if spread[kids[best]] <= reach:
+                prev_xy, axis_xy = axis_xy, centroid[kids[best], :2].copy()
             cur = kids[best]
         stem_tops.append(centroid[cur].tolist())
 

@@ -596,7 +596,7 @@ def projected_area_xy(points: Any, *, cell: float = 0.005) -> float:
 # whole plants
 # --------------------------------------------------------------------------
 def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | None = None,
-                  min_points: int = 3) -> float:
+                  min_points: int = 2) -> float:
     """Height of the plant that one stray point cannot set.
 
     Method: statistical outlier removal (Rusu et al. 2008), then the highest
@@ -635,7 +635,8 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
     reach beyond its last centroid. Width: per midrib node, the robust extent
     (2nd to 98th percentile) of the node's points across the midrib, along their main
-    in-plane axis; the largest over nodes. Area: the triangulated ribbon between the
+    in-plane axis; the 90th percentile over nodes (the largest is where a
+    neighbour touches). Area: the triangulated ribbon between the
     two margins, i.e. sum over midrib segments of the mean of the two node widths
     times the segment length (a leaf surface unrolled along its midrib, as in the
     length-width area models of Montgomery 1911, here with the measured width
@@ -667,7 +668,9 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     area = float(np.sum(0.5 * (widths[:-1] + widths[1:]) * seg_len))
     chord = midrib[-1] - midrib[0]
     incl = float(np.degrees(np.arctan2(chord[2], np.hypot(chord[0], chord[1]))))
-    return length, float(widths.max()), area, incl
+    # The widest cross-sections are where a neighbouring organ touches: the 90th
+    # percentile of the node widths reads the leaf's own maximum width.
+    return length, float(np.percentile(widths[1:], 90)), area, incl
 
 
 def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None) -> PlantTraits:
