@@ -298,6 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_rig_commands(sub)
     __import__("plantsim.cli.render", fromlist=["add_render_command"]).add_render_command(sub)
     __import__("plantsim.cli.urg", fromlist=["add_urg_commands"]).add_urg_commands(sub)
+    __import__("plantsim.cli.traits", fromlist=["add_traits_command"]).add_traits_command(sub)
     return parser
 
 

@@ -220,9 +220,14 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             truth = json.loads(found.read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
             raise ValueError(f"truth_path: {found} is not valid JSON: {exc}") from exc
-        reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
-        estimate = traits.extract_traits(pts, settings=options.trait_settings)
-        comparison = traits.compare_traits(estimate, reference)
+        try:
+            reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
+            estimate = traits.extract_traits(pts, settings=options.trait_settings)
+            comparison = traits.compare_traits(estimate, reference)
+        except (ValueError, KeyError, TypeError) as exc:
+            # A truth file in another schema costs the trait comparison, never the scan.
+            logger.warning("truth %s not usable for traits, comparison skipped: %s", found, exc)
+            comparison = estimate = None
     return Evaluation(n_points=int(len(pts)), metrics=measured, traits=comparison, estimate=estimate,
                       truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
 

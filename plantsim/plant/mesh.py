@@ -215,29 +215,99 @@ def clean_arrays(vertices: np.ndarray, faces: np.ndarray, *, source: str = "<mem
     return unique[is_used], remap[faces].astype(np.int32), n_dropped
 
 
-def placement_transform(vertices_up: np.ndarray, placement: str) -> np.ndarray:
+def find_stem_base(vertices_up: np.ndarray, *, max_stem_diameter_m: float = 0.05
+                   ) -> tuple[np.ndarray, str]:
+    """Where the stem meets the ground: XY of the stem axis, from the base up.
+
+    The mesh's vertices are sliced from the lowest point up in slices of 1 % of the
+    height (at least 1 mm), over the lowest 25 %. In each slice the vertices are
+    clustered in XY (single linkage at 3 % of the height); a compact cluster
+    (extent <= ``max_stem_diameter_m``) that appears at the same place (within its
+    own extent) in at least 5 slices is a stem column. The column whose lowest slice
+    is lowest wins (the main stem); ties go to the most slices. A drooping leaf
+    crosses few slices at one place, and a pot is wider than a stem, so neither is
+    taken for the base. With no column, the XY centre of the lowest 2 % is used and
+    the explanation says so.
+
+    Args:
+        vertices_up: (n, 3) float64, metres, +Z up.
+        max_stem_diameter_m: widest stem accepted, metres.
+
+    Returns:
+        ((2,) float64 XY of the stem base, metres; explanation).
+    """
+    from scipy import sparse
+    from scipy.sparse import csgraph
+    from scipy.spatial import cKDTree
+
+    z = vertices_up[:, 2]
+    z_min, h = float(z.min()), float(np.ptp(z)) or 1e-3
+    dz = max(0.01 * h, 1e-3)
+    link = 0.03 * h
+    columns: list[list] = []  # [centre_xy, extent, n_slices, first_slice]
+    for k in range(int(0.25 * h / dz) + 1):
+        sel = vertices_up[(z >= z_min + k * dz) & (z < z_min + (k + 1) * dz), :2]
+        if len(sel) < 3:
+            continue
+        pairs = cKDTree(sel).query_pairs(link, output_type="ndarray")
+        n = len(sel)
+        _, lab = csgraph.connected_components(
+            sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)),
+            directed=False)
+        for c in range(lab.max() + 1):
+            xy = sel[lab == c]
+            extent = float(np.ptp(xy, axis=0).max())
+            if len(xy) < 3 or extent > max_stem_diameter_m:
+                continue
+            centre = 0.5 * (xy.min(axis=0) + xy.max(axis=0))
+            for col in columns:
+                if np.linalg.norm(col[0] - centre) <= max(col[1], extent, 1e-3) and col[4] != k:
+                    col[2] += 1
+                    col[4] = k
+                    break
+            else:
+                columns.append([centre, extent, 1, k, k])
+    stems = [c for c in columns if c[2] >= 5]
+    if stems:
+        best = min(stems, key=lambda c: (c[3], -c[2]))
+        return best[0], (f"stem base at ({best[0][0]:.4f}, {best[0][1]:.4f}) m: a column "
+                         f"{best[1] * 1e3:.1f} mm wide over {best[2]} slices of {dz * 1e3:.1f} mm")
+    band = max(0.02 * h, 1e-3)
+    foot = vertices_up[z <= z_min + band, :2]
+    centre = 0.5 * (foot.min(axis=0) + foot.max(axis=0))
+    return centre, ("no stem column found in the lowest 25 % of the plant; centred the lowest "
+                    f"2 % ({band * 1e3:.1f} mm) instead")
+
+
+def placement_transform(vertices_up: np.ndarray, placement: str, *,
+                        base_point: np.ndarray | None = None) -> np.ndarray:
     """Translation putting an up-aligned mesh on the disk.
 
     Args:
       vertices_up: (n, 3) float64, metres, +Z up (file axes rotated).
-      placement: "base": the base (the lowest 2 % of the height, at least 1 mm)
-        centred on the axis and the lowest point on the disk top; "bbox": the
-        bounding box's XY centre on the axis, lowest point on the disk top;
-        "none": no translation.
+      placement: "base": the stem base (:func:`find_stem_base`) on the axis and the
+        lowest point on the disk top; "bbox": the bounding box's XY centre on the
+        axis, lowest point on the disk top; "none": no translation.
+      base_point: (3,) float64, metres, up-aligned mesh coordinates: a user's base
+        point, put at the turntable origin (overrides ``placement``).
 
     Returns:
       (3,) float64, metres.
     """
+    if base_point is not None:
+        p = np.asarray(base_point, dtype=np.float64).reshape(-1)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise ValueError(f"base_point must be 3 finite numbers (metres), got {base_point!r}")
+        return -p
     if placement == "none":
         return np.zeros(3)
-    z = vertices_up[:, 2]
-    z_min = z.min()
+    z_min = vertices_up[:, 2].min()
     if placement == "base":
-        band = max(0.02 * (z.max() - z_min), 1e-3)
-        foot = vertices_up[z <= z_min + band, :2]
+        centre_xy, why = find_stem_base(vertices_up)
+        log.info("placement base: %s", why)
     else:
         foot = vertices_up[:, :2]
-    centre_xy = 0.5 * (foot.min(axis=0) + foot.max(axis=0))
+        centre_xy = 0.5 * (foot.min(axis=0) + foot.max(axis=0))
     return -np.array([centre_xy[0], centre_xy[1], z_min])
 
 

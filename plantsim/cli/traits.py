@@ -1,0 +1,69 @@
+"""``plantsim traits CLOUD [--json] [-o traits.json]``: the traits of any cloud.
+
+The cloud (LAS/LAZ/PLY/PCD/TXT, read by :func:`plantsim.cloud.export.read_cloud`) must
+be in the turntable frame, metres, z up, the plant base at ``--base-z``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+
+def add_traits_command(sub) -> None:
+    """Registers ``traits`` on the ``plantsim`` sub-parsers."""
+    p = sub.add_parser("traits", help="extract plant traits from a point cloud",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("cloud", type=Path, help="point cloud file (.las .laz .ply .pcd .txt)")
+    p.add_argument("--json", action="store_true", help="print the traits as JSON")
+    p.add_argument("-o", "--output", type=Path, default=None, help="write the traits JSON here")
+    p.add_argument("--base-z", type=float, default=0.0, help="z of the plant base, metres (default 0)")
+    p.add_argument("--all-points", action="store_true",
+                   help="use every point (default: plant-class points when the file has classes)")
+    p.set_defaults(func=cmd_traits)
+
+
+def traits_dict(points_turntable, *, base_z: float = 0.0) -> dict:
+    """The traits JSON object of a cloud (NaN becomes None)."""
+    from plantsim.evaluation.traits import TraitSettings, extract_traits
+
+    return extract_traits(points_turntable, settings=TraitSettings(base_z=base_z)).to_dict()
+
+
+def cmd_traits(args: argparse.Namespace) -> int:
+    from plantsim.cloud.export import read_cloud
+
+    if not args.cloud.is_file():
+        print(f"plantsim traits: cloud file not found: {args.cloud}", file=sys.stderr)
+        return 2
+    cloud = read_cloud(args.cloud)
+    if not args.all_points and hasattr(cloud, "plant_only"):
+        try:
+            plant = cloud.plant_only()
+            if len(plant.points_turntable):
+                cloud = plant
+        except (AttributeError, ValueError):
+            pass
+    pts = cloud.points_turntable
+    try:
+        out = traits_dict(pts, base_z=args.base_z)
+    except ValueError as exc:
+        print(f"plantsim traits: {exc}", file=sys.stderr)
+        return 2
+    text = json.dumps(out, indent=2)
+    if args.output is not None:
+        args.output.write_text(text + "\n", encoding="utf-8")
+    if args.json:
+        print(text)
+    else:
+        def f(v, scale=1.0, unit=""):
+            return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v * scale:.4g}{unit}"
+        print(f"height {f(out['height_m'], 1e3, ' mm')}; stems {out['stem_count']}, diameter "
+              f"{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}; "
+              f"leaves {out['leaf_count']}, area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
+        for note in out["notes"]:
+            print(f"note: {note}")
+    return 0

@@ -1,0 +1,112 @@
+"""Organ segmentation, traits on exact procedural plants, stem-base placement, rig fit."""
+
+import json
+
+import numpy as np
+import pytest
+
+from plantsim.evaluation import metrics, segmentation, traits
+from plantsim.plant.mesh import find_stem_base, plant_from_arrays
+from plantsim.plant.procedural import make_maize, make_wheat
+from plantsim.rig.fit import fit_rig, rig_fit_warnings
+from plantsim.rig.geometry import RigGeometry
+from plantsim.sensor.spec import PRESETS
+
+LIDAR = PRESETS["urg-04lx-ug01"]
+
+
+def _dense(plant, n=120_000):
+    pts, _ = metrics.sample_surface(plant.vertices_m, plant.faces, n, rng=0)
+    return pts
+
+
+@pytest.mark.parametrize("make, kw", [(make_maize, {"n_leaves": 5}), (make_wheat, {"n_tillers": 2, "leaves_per_tiller": 3})])
+def test_traits_of_an_exact_dense_cloud(make, kw):
+    plant = make(seed=1, **kw)
+    t = traits.extract_traits(_dense(plant))
+    truth = plant.traits
+    assert abs(t.height_m - truth["height_m"]) / truth["height_m"] < 0.02
+    assert t.stem_count == len(truth["stems"])
+    assert abs(t.stem_diameter_m - truth["stem_diameter_m"]) / truth["stem_diameter_m"] < 0.10
+    n_true = len(truth["leaves"])
+    assert abs(t.leaf_count - n_true) <= max(1, round(0.2 * n_true))
+    assert abs(t.leaf_area_m2 - truth["leaf_area_m2"]) / truth["leaf_area_m2"] < 0.35
+    d = t.to_dict()
+    for key in ("height_m", "stem_count", "stem_diameter_m", "stem_height_m", "leaf_count",
+                "leaf_area_m2", "leaf_lengths_m", "leaf_widths_m"):
+        assert key in d
+
+
+def test_no_stem_is_said_honestly():
+    rng = np.random.default_rng(0)
+    # A horizontal sheet 10 cm above the ground: no stem at the base.
+    pts = np.column_stack([rng.uniform(-0.1, 0.1, 5000), rng.uniform(-0.1, 0.1, 5000),
+                           0.1 + 1e-4 * rng.standard_normal(5000)])
+    t = traits.extract_traits(pts)
+    assert t.stem_count == 0 and np.isnan(t.stem_diameter_m)
+    assert any("no stem" in n for n in t.notes)
+
+
+def test_robust_height_ignores_one_stray_point():
+    rng = np.random.default_rng(1)
+    pts = np.column_stack([rng.uniform(-0.01, 0.01, 4000), rng.uniform(-0.01, 0.01, 4000),
+                           rng.uniform(0, 0.3, 4000)])
+    stray = np.vstack([pts, [[0.0, 0.0, 0.9]]])
+    assert traits.robust_height(stray) == pytest.approx(0.3, abs=0.01)
+
+
+def test_scale_follows_the_spacing():
+    g = np.arange(0, 0.2, 0.002)
+    x, y = np.meshgrid(g, g)
+    pts = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    sc = segmentation.estimate_scale(pts)
+    assert 0.0015 < sc.spacing_m < 0.003 and sc.noise_m < 1e-6
+
+
+def test_stem_base_placement_ignores_a_drooping_leaf_and_a_pot():
+    plant = make_maize(seed=0, n_leaves=4)
+    v = plant.vertices_m.copy()
+    # A pot: a 12 cm wide ring of vertices around the stem, 5 cm high, off-centre by 3 cm.
+    a = np.linspace(0, 2 * np.pi, 200)
+    pot = np.column_stack([0.03 + 0.06 * np.cos(a), 0.06 * np.sin(a), np.full_like(a, -0.05)])
+    # A leaf drooping to the ground 25 cm away.
+    leaf = np.column_stack([np.full(50, 0.25), np.linspace(0, 0.05, 50), np.linspace(-0.05, 0.1, 50)])
+    up = np.vstack([v, pot, leaf]) + [0.2, -0.1, 0.0]
+    xy, why = find_stem_base(up)
+    assert np.allclose(xy, [0.2, -0.1], atol=0.002), why
+
+
+def test_rig_fit_warns_and_fits():
+    plant = make_maize(seed=0)
+    placed = plant_from_arrays(plant.vertices_m, plant.faces)
+    tight = RigGeometry(lidar_distance_m=0.2, disk_radius_m=0.1)
+    warnings = rig_fit_warnings(placed, tight, LIDAR)
+    assert any("passes through" in w for w in warnings)
+    big = plant_from_arrays(plant.vertices_m * 10, plant.faces)
+    assert any("check the mesh units" in w for w in rig_fit_warnings(big, RigGeometry(), LIDAR))
+    fitted, why = fit_rig(placed, tight, LIDAR)
+    assert "LiDAR at" in why
+    assert rig_fit_warnings(placed, fitted, LIDAR) == []
+
+
+def test_truth_missing_keys_are_skipped():
+    ref = traits.traits_from_truth({"leaves": [{"length_m": 0.2, "width_m": 0.02}]})
+    est = traits.PlantTraits(height_m=0.5, leaf_width_m=0.021, leaf_count=1)
+    cmp = traits.compare_traits(est, ref)
+    names = [e.trait for e in cmp.errors]
+    assert "height_m" not in names and "leaf_width_m" in names and "leaf_count" in names
+
+
+def test_cli_traits_round_trip(tmp_path, capsys):
+    from plantsim.cli.app import build_parser
+    plant = make_maize(seed=2, n_leaves=3)
+    pts = _dense(plant, 60_000)
+    path = tmp_path / "c.ply"
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
+              "property float y\nproperty float z\nend_header\n" % len(pts))
+    path.write_bytes(header.encode("ascii") + pts.astype("<f4").tobytes())
+    out = tmp_path / "t.json"
+    args = build_parser().parse_args(["traits", str(path), "--json", "-o", str(out)])
+    assert args.func(args) == 0
+    data = json.loads(out.read_text())
+    assert data["stem_count"] == 1 and data["leaf_count"] >= 2
