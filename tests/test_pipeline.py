@@ -201,7 +201,7 @@ def test_the_sidecar_records_what_was_simulated(box_file, tmp_path):
     side = json.loads(out.with_name("c.ply.json").read_text())
     simulated = side["simulated"]
     assert simulated["plan"] == {"mode": "continuous", "sensor": "ideal", "motion": "physics",
-                                 "angle_mode": "interpolate", "notes": []}
+                                 "angle_mode": "interpolate", "notes": [], "rig_fit_warnings": []}
     assert simulated["lidar"]["effects"].startswith("none")
     assert simulated["turntable"]["encoder"]["ticks_per_rev"] == 4096
     assert side["turntable_diagnostics"]["physics_steps"] > 0

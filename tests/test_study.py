@@ -228,3 +228,12 @@ def test_study_rows_say_what_was_simulated(monkeypatch):
                          "ideal": True, "threads": 1})
     assert row["error"] == "" and row["sensor"] == "ideal" and row["turntable_motion"] == "kinematic"
     assert row["mode"] == "continuous" and row["angle_mode"] == "interpolate"
+
+
+def test_study_rows_carry_what_the_turntable_did():
+    row = study.run_one({"plant": "maize", "mode": "continuous", "rpm": 10.0, "ideal": False},
+                        {"turntable": {"mode": "continuous", "rpm": 10.0, "physics": "dynamic"},
+                         "scan": {"sweep_deg": 30.0}, "sensor": "ideal", "threads": 1})
+    assert row["error"] == "" and row["turntable_motion"] == "physics"
+    assert row["turntable_physics_steps"] > 0 and row["turntable_max_tracking_error_rad"] >= 0
+    assert row["angle_error_n_points"] > 0 and row["angle_error_displacement_max_m"] >= 0

@@ -230,6 +230,13 @@ def run_one(run: Mapping[str, Any], config_data: Mapping[str, Any],
         "points": len(result.cloud),
         "plant_points": ev.n_points,
     })
+    # What the turntable did (dynamic scans: tracking, play, settle times; every simulated scan:
+    # how far the plant's points moved for the believed-minus-true angle).
+    for key, value in result.diagnostics.items():
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            row[f"turntable_{key}"] = value
+    for key, value in result.diagnostics.get("angle_error_plant", {}).items():
+        row[f"angle_error_{key}"] = value
     if ev.metrics is not None:
         row.update({f"{k}_m" if k != "coverage" else k: getattr(ev.metrics, k) for k in METRIC_COLUMNS})
     if ev.traits is not None:

@@ -189,6 +189,11 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
     if plant is None:
         plant = load_configured_plant(config)
     timings["load_mesh"] = time.perf_counter() - t
+    from plantsim.rig.fit import rig_fit_warnings
+
+    fit_warnings = rig_fit_warnings(plant, config.rig, config.lidar)
+    for warning in fit_warnings:
+        log.warning("%s", warning)
 
     t = time.perf_counter()
     dscene = None
@@ -239,7 +244,8 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
                        "note": "reported minus commanded, per line; points use the reported angle"}
     timings["scan"] = time.perf_counter() - t
 
-    parts = {"plan": plan.to_dict(), "schedule": _describe_schedule(config, plan, raw),
+    parts = {"plan": {**plan.to_dict(), "rig_fit_warnings": list(fit_warnings)},
+             "schedule": _describe_schedule(config, plan, raw),
              "turntable": _describe_turntable(config, plan, turntable), "lidar": source.describe()}
     return finish_scan(config, plan, plant, scene, raw, timings, parts=parts, diagnostics=diagnostics,
                        journal_path=journal_path, lines_resumed=lines_resumed)
