@@ -193,9 +193,17 @@ def make_backend(scene: Scene, name: str = "mujoco", *, nthread: int | None = No
 
 def rotate_z(vectors: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
     """Rotates (..., 3) vectors about +Z by (...) angles (right hand)."""
-    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return _turn(vectors, np.cos(angle_rad), np.sin(angle_rad))
+
+
+def _turn(vectors: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Rotates (..., 3) vectors about +Z given the angles' cosines and sines (broadcast)."""
+    out = np.empty(vectors.shape)
     x, y = vectors[..., 0], vectors[..., 1]
-    return np.stack([c * x - s * y, s * x + c * y, vectors[..., 2]], axis=-1)
+    out[..., 0] = c * x - s * y
+    out[..., 1] = s * x + c * y
+    out[..., 2] = vectors[..., 2]
+    return out
 
 
 class Caster:
@@ -245,7 +253,7 @@ class Caster:
         ids = np.asarray(ray_ids)
         n_lines, k = ids.shape
         theta = np.asarray(table_rad, dtype=np.float64)
-        theta = np.broadcast_to(theta[:, None] if theta.ndim == 1 else theta, (n_lines, k))
+        per_line = theta.ndim == 1  # one angle a line: one cos/sin a line, broadcast over its rays
         dist = np.empty((n_lines, k))
         geom = np.empty((n_lines, k), dtype=np.int32)
         normal = np.empty((n_lines, k, 3)) if normals else None
@@ -253,10 +261,12 @@ class Caster:
         dirs = np.vstack([self.dirs_base, (0.0, 0.0, 1.0)])
         for lo in range(0, n_lines, chunk_lines):
             hi = min(lo + chunk_lines, n_lines)
-            sel, th = ids[lo:hi], theta[lo:hi]
+            sel = ids[lo:hi]
+            th = theta[lo:hi, None] if per_line else theta[lo:hi]
+            c, s = np.cos(th), np.sin(th)
             real = sel != self.pad_id
-            o = rotate_z(origins[sel], -th)
-            d = rotate_z(dirs[sel], -th)
+            o = _turn(origins[sel], c, -s)
+            d = _turn(dirs[sel], c, -s)
             hits = self.backend.cast_turning(o[real], d[real], normals=normals)
             self.n_rays_cast += int(real.sum())
             dt = np.full(sel.shape, -1.0)
@@ -269,7 +279,7 @@ class Caster:
             if normals:
                 nt = np.zeros(sel.shape + (3,))
                 nt[real] = hits.normal_base
-                nt = rotate_z(nt, th)  # back from the turntable frame to the base frame
+                nt = _turn(nt, c, s)  # back from the turntable frame to the base frame
                 normal[lo:hi] = np.where(rig_nearer[..., None], self._fixed_normal[sel], nt)
             if progress is not None:
                 progress(hi, n_lines)

@@ -207,7 +207,7 @@ class SimulatedLidar:
             c = hi - lo
             var = variant[lo:hi]
             ids = (first_id[lo:hi, :, None] + probe[None, None, :]).reshape(c, -1)
-            th = np.repeat(per_beam[lo:hi], len(probe), axis=1)
+            th = theta[lo:hi] if theta.ndim == 1 else np.repeat(per_beam[lo:hi], len(probe), axis=1)
             hits = self.caster.cast(ids, th, normals=True)
             d = hits.dist_m.reshape(c, n_beams, len(probe))
             g = hits.geom_id.reshape(c, n_beams, len(probe))
