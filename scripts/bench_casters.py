@@ -24,9 +24,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -40,15 +38,7 @@ from plantsim.scan.schedule import StepScan
 from plantsim.sensor.casting import MujocoBackend, rotate_z
 from plantsim.sensor.lidar import SimulatedLidar
 from plantsim.sensor.spec import URG_04LX_UG01
-
-
-def median_time(fn, runs):
-    times, result = [], None
-    for _ in range(runs):
-        t = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), result
+from benchkit import median_time  # noqa: E402 (scripts/ is on the path)
 
 
 def main() -> None:

@@ -46,8 +46,8 @@ from plantsim.scan.pipeline import step_and_shoot
 from plantsim.scan.raw import BeamGrid
 from plantsim.scan.schedule import StepScan
 from plantsim.sensor.casting import MujocoBackend
-from plantsim.sensor.lidar import SimulatedLidar
 from plantsim.sensor.spec import URG_04LX_UG01
+from benchkit import median_time  # noqa: E402 (scripts/ is on the path)
 
 N_LEAVES = 12
 ACROSS = 8  # quads across a leaf
@@ -91,15 +91,6 @@ def write_binary_stl(path: Path, triangles: np.ndarray) -> None:
         f.write(b"plantsim bench_mesh_sizes".ljust(80, b" "))
         f.write(np.uint32(len(triangles)).tobytes())
         f.write(data.tobytes())
-
-
-def median_time(fn, runs):
-    times, result = [], None
-    for _ in range(runs):
-        t = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), result
 
 
 def main() -> None:

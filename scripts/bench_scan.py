@@ -35,15 +35,7 @@ from plantsim.scan.schedule import StepScan
 from plantsim.scan.pipeline import step_and_shoot
 from plantsim.rig.scene import LIDAR_GEOMGROUP, build_scene
 from plantsim.sensor.spec import URG_04LX_UG01
-
-
-def median_time(fn, runs):
-    times, result = [], None
-    for _ in range(runs):
-        t = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), result
+from benchkit import median_time  # noqa: E402 (scripts/ is on the path)
 
 
 def main() -> None:

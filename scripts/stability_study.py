@@ -24,7 +24,6 @@ import argparse
 import csv
 import itertools
 import json
-import math
 import sys
 import time
 

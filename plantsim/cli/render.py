@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 _CLOUD_SUFFIXES = (".las", ".laz", ".pcd", ".txt", ".xyz", ".pts")

@@ -31,6 +31,7 @@ import numpy as np
 from plantsim.cloud.reconstruct import PointCloud, reconstruct
 from plantsim.plant.mesh import PlantMesh, load_plant
 from plantsim.resources import bundled_plant_path
+from plantsim.rig.fit import rig_fit_warnings
 from plantsim.rig.scene import Scene, build_scene
 from plantsim.scan.config import RunConfig
 from plantsim.scan.plan import ScanPlan, plan_scan
@@ -118,15 +119,16 @@ def journal_path_for(output: str | os.PathLike) -> Path:
     return output.with_name(output.name + ".journal")
 
 
-def _timing(config: RunConfig, grid: BeamGrid) -> motions.LineTiming:  # noqa: D103
-    return motions.LineTiming(scan_period_s=config.lidar.scan_period_s,
-                              first_beam_s=float(config.lidar.beam_time_offsets_s()[0]),
+def _timing(lidar: LidarSpec, grid: BeamGrid) -> motions.LineTiming:
+    """The sensor's timing as a motion needs it."""
+    return motions.LineTiming(scan_period_s=lidar.scan_period_s,
+                              first_beam_s=float(lidar.beam_time_offsets_s()[0]),
                               beam_offsets_s=grid.beam_offsets_s())
 
 
 def _motion(config: RunConfig, plan: ScanPlan, dscene, grid: BeamGrid,
             rng: np.random.Generator) -> motions.MotionRecord:
-    timing = _timing(config, grid)
+    timing = _timing(config.lidar, grid)
     tt = config.turntable
     if plan.motion == "kinematic" and plan.mode == "step":
         if config.scan.step_time_s < config.lidar.scan_period_s:
@@ -189,8 +191,6 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
     if plant is None:
         plant = load_configured_plant(config)
     timings["load_mesh"] = time.perf_counter() - t
-    from plantsim.rig.fit import rig_fit_warnings
-
     fit_warnings = rig_fit_warnings(plant, config.rig, config.lidar)
     for warning in fit_warnings:
         log.warning("%s", warning)
@@ -304,10 +304,8 @@ def step_and_shoot(scene: Scene, lidar: LidarSpec, schedule: StepScan, *, model:
     rng = np.random.default_rng(0) if rng is None else rng
     grid = BeamGrid.of(lidar)
     source = SimulatedLidar(scene, lidar, grid.beam_angles_rad(), model=model, backend=make_backend(scene, caster))
-    timing = motions.LineTiming(scan_period_s=lidar.scan_period_s,
-                                first_beam_s=float(lidar.beam_time_offsets_s()[0]),
-                                beam_offsets_s=grid.beam_offsets_s())
-    record = motions.kinematic_step(schedule.angles_rad(), schedule.step_time_s, timing, EncoderConfig.ideal(),
+    record = motions.kinematic_step(schedule.angles_rad(), schedule.step_time_s, _timing(lidar, grid),
+                                    EncoderConfig.ideal(),
                                     rng)
     return simulate_lines(source, record, grid, "interpolate", rng, progress=progress)
 

@@ -88,7 +88,7 @@ def _given_under(config: RunConfig, section: str, fields) -> list[str]:
     return [f"{section}.{f}" for f in fields if given(config, f"{section}.{f}")]
 
 
-def _physics_settings(config: RunConfig, mode: str) -> list[str]:
+def _physics_settings(config: RunConfig) -> list[str]:
     """The given settings that need the servo's physics."""
     keys = [k for k in sorted(config.explicit) if k.startswith(("turntable.servo.", "turntable.registers.",
                                                                  "turntable.jitter."))
@@ -179,7 +179,7 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False) -> ScanPla
                           f"use {fix}")
 
     # --- the turntable --------------------------------------------------------
-    physics_keys = _physics_settings(config, mode)
+    physics_keys = _physics_settings(config)
     encoder_keys = sorted(k for k in config.explicit if k.startswith("turntable.encoder."))
     if not encoder_keys and tt.encoder != EncoderConfig():
         encoder_keys = ["turntable.encoder"]

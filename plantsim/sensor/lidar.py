@@ -27,8 +27,8 @@ from plantsim.rig.geometry import beam_dirs_lidar
 from plantsim.rig.scene import Scene
 from plantsim.sensor import casting
 from plantsim.sensor.casting import Backend, Caster, Progress, gate_ranges
-from plantsim.sensor.footprint import (coplanar_probes, combine_footprint, jitter_subrays, subray_pattern,
-                                      subrays_lidar)
+from plantsim.sensor.footprint import (FootprintReturn, coplanar_probes, combine_footprint, jitter_subrays,
+                                      subray_pattern, subrays_lidar)
 from plantsim.sensor.model import SensorModel, apply_sensor
 from plantsim.sensor.spec import BeamStatus, LidarSpec
 
@@ -184,8 +184,6 @@ class SimulatedLidar:
 
     def _footprints(self, theta: np.ndarray, rng: np.random.Generator, progress: Progress | None):
         """Combined footprint returns per beam: (FootprintReturn of (n_lines, n_beams), geom)."""
-        from plantsim.sensor.footprint import FootprintReturn
-
         n_lines, n_beams, S = len(theta), len(self.beam_angles_rad), self.n_sub
         per_beam = theta if theta.ndim == 2 else np.broadcast_to(theta[:, None], (n_lines, n_beams))
         pattern = self.pattern
