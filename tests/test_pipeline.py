@@ -162,6 +162,12 @@ def test_settings_the_parts_would_not_use_are_refused(data, hardware, message):
         plan_scan(config_from_dict(data), hardware_turntable=hardware)
 
 
+def test_a_setting_given_at_its_default_value_still_counts_as_given():
+    # settle_timeout_s = 2.0 is the default: written in TOML for a continuous scan, it is still unused.
+    with pytest.raises(ConfigError, match=r"\[turntable\] settle_timeout_s applies to step scans"):
+        plan_scan(config_from_dict({"turntable": {"mode": "continuous", "settle_timeout_s": 2.0}}))
+
+
 def test_settings_built_in_python_count_as_given():
     config = RunConfig(turntable=TurntableOptions(mode="continuous"), scan=StepScan(step_deg=2.0))
     with pytest.raises(ConfigError, match="--step-deg applies to step scans"):

@@ -76,7 +76,10 @@ def _value(obj, path: str):
 
 def given(config: RunConfig, path: str) -> bool:
     """Whether the user set the setting at a dotted path (``turntable.jitter.backlash_deg``)."""
-    if path in config.explicit or any(k.startswith(path + ".") for k in config.explicit):
+    # TOML writes the [turntable] dynamics scalars as turntable.X; the dataclass holds them
+    # at turntable.dynamics.X.
+    paths = (path, path.replace("turntable.dynamics.", "turntable.", 1))
+    if any(p in config.explicit or any(k.startswith(p + ".") for k in config.explicit) for p in paths):
         return True
     try:
         return _value(config, path) != _value(_DEFAULT, path)
