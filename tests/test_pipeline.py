@@ -414,3 +414,31 @@ def test_wrong_types_at_the_python_entry_point_are_named():
         run_scan(RunConfig(), turntable=object())
     with pytest.raises(TypeError, match="RunConfig.scan must be a plantsim.StepScan, got float"):
         RunConfig(scan=1.0)
+
+
+# --- where the time went ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("sensor", ["ideal", "realistic"])
+def test_the_sidecar_counts_the_rays_cast_per_phase(box, sensor):
+    from plantsim.scan.pipeline import sidecar
+    from plantsim.sensor.model import SensorModel
+
+    # every sub-ray cast (not adaptive): the count is exact; the ideal sensor takes no model
+    model = {} if sensor == "ideal" else {"sensor_model": SensorModel(adaptive_footprint=False)}
+    result = run_scan(RunConfig(sensor=sensor, scan=StepScan(step_deg=30), **model), plant=box)
+    n_lines, n_beams = result.raw.range_m.shape
+    work = result.parts["lidar"]["work"]
+    perf = sidecar(result)["performance"]
+    assert work["beams"] == perf["beams"] == n_lines * n_beams
+    n_sub = 1 if sensor == "ideal" else result.parts["lidar"]["effects"]["footprint_subrays"]
+    patterns = 1 if sensor == "ideal" else result.parts["lidar"]["effects"]["footprint_patterns"]
+    assert perf["turning_cast"]["rays"] == n_lines * n_beams * n_sub
+    assert perf["rig_cast_once"]["rays"] == patterns * n_beams * n_sub
+    for phase in ("rig_cast_once", "turning_cast"):
+        assert perf[phase]["s"] > 0
+        assert perf[phase]["rays_per_s"] == pytest.approx(perf[phase]["rays"] / perf[phase]["s"], rel=1e-3)
+    assert perf["scan_phase"]["s"] == pytest.approx(result.timings_s["scan"], abs=1e-6)
+    # the phases the line source reports fit inside the scan phase
+    inside = (perf["turning_cast"]["s"] + perf["sensor_model"]["s"] + perf["footprint_and_bookkeeping"]["s"])
+    assert inside <= result.timings_s["scan"] + 1e-6
+    assert (perf["sensor_model"]["s"] > 0) == (sensor == "realistic")

@@ -443,6 +443,9 @@ def sidecar(result: ScanResult) -> dict:
         "timings_s": result.timings_s,
         "simulated_rig_time_s": simulated_rig_time_s(result),
     }
+    work = result.parts.get("lidar", {}).get("work")
+    if work:
+        out["performance"] = performance(result.timings_s, work)
     if result.diagnostics:
         out["turntable_diagnostics"] = result.diagnostics
     if result.journal_path is not None:
@@ -451,6 +454,26 @@ def sidecar(result: ScanResult) -> dict:
         out["raw"] = {"path": result.config.output.raw, "format": "ROS 2 bag (MCAP storage)"}
     if result.evaluation is not None:
         out["evaluation"] = result.evaluation.to_dict()
+    return out
+
+
+def performance(timings_s: dict, work: dict) -> dict:
+    """Where a scan's time went: rays cast and rays per second per phase.
+
+    Args:
+      timings_s: the run's phase wall times (``ScanResult.timings_s``).
+      work: the line source's counts (:meth:`SimulatedLidar.work`).
+
+    Returns:
+      The line source's phases, plus the scan phase's throughput (beams and all
+      rays cast per second of the whole ``scan`` phase, motion excluded).
+    """
+    scan_s = timings_s.get("scan", 0.0)
+    rays = work["turning_cast"]["rays"]
+    out = dict(work)
+    if scan_s > 0:
+        out["scan_phase"] = {"s": round(scan_s, 6), "beams_per_s": round(work["beams"] / scan_s),
+                             "rays_per_s": round(rays / scan_s)}
     return out
 
 

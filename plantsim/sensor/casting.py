@@ -20,6 +20,7 @@ from __future__ import annotations
 import copy
 import logging
 import os
+import time
 from typing import Callable, NamedTuple, Protocol
 
 import mujoco
@@ -218,7 +219,9 @@ class Caster:
 
     Attributes:
       pad_id: a ray id that casts nothing (a miss), for padding ragged selections.
-      n_rays_cast: turning rays cast so far (padding included).
+      n_rays_cast: turning rays cast so far (padding excluded).
+      n_rays_fixed: rays cast once against the fixed rig (the whole ray table).
+      cast_fixed_s, cast_turning_s: wall time inside the backend, s.
     """
 
     def __init__(self, scene: Scene, origins_base: np.ndarray, dirs_base: np.ndarray, *,
@@ -229,7 +232,11 @@ class Caster:
         self.pad_id = n
         self.origins_base = np.asarray(origins_base, dtype=np.float64).reshape(n, 3)
         self.dirs_base = np.asarray(dirs_base, dtype=np.float64).reshape(n, 3)
+        t = time.perf_counter()
         fixed = self.backend.cast_fixed(self.origins_base, self.dirs_base, normals=True)
+        self.cast_fixed_s = time.perf_counter() - t
+        self.n_rays_fixed = n
+        self.cast_turning_s = 0.0
         self._fixed_dist = np.append(fixed.dist_m, -1.0)
         self._fixed_geom = np.append(fixed.geom_id, -1).astype(np.int32)
         self._fixed_normal = np.vstack([fixed.normal_base, np.zeros((1, 3))])
@@ -267,7 +274,9 @@ class Caster:
             real = sel != self.pad_id
             o = _turn(origins[sel], c, -s)
             d = _turn(dirs[sel], c, -s)
+            t = time.perf_counter()
             hits = self.backend.cast_turning(o[real], d[real], normals=normals)
+            self.cast_turning_s += time.perf_counter() - t
             self.n_rays_cast += int(real.sum())
             dt = np.full(sel.shape, -1.0)
             gt = np.full(sel.shape, -1, dtype=np.int32)

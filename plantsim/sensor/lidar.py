@@ -19,6 +19,7 @@ so a scan's raw record and its ROS 2 bag hold the same numbers.
 from __future__ import annotations
 
 import logging
+import time
 from typing import NamedTuple
 
 import numpy as np
@@ -116,6 +117,9 @@ class SimulatedLidar:
             self.reflectance = model.reflectance_by_class()
         self.caster = Caster(scene, origins, dirs, backend=backend, nthread=nthread)
         self.n_refined = 0
+        self.n_beams_taken = 0
+        self.lines_s = 0.0  # wall time in cast_lines, s (casting included)
+        self.sensor_model_s = 0.0  # wall time of the range/intensity/noise model, s
 
     @property
     def ideal(self) -> bool:
@@ -136,7 +140,33 @@ class SimulatedLidar:
                 "systematic_error": m.systematic_error,
                 "range_noise": m.range_noise, "quantise": m.quantise, "intensity": m.intensity,
                 "dropouts": m.dropouts}
+        out["work"] = self.work()
         return out
+
+    def work(self) -> dict:
+        """What the casting cost so far: rays cast and wall time per phase (for the sidecar).
+
+        ``rig_cast_once``: the whole ray table (every footprint sub-ray of every
+        pattern) against the fixed rig, once; ``turning_cast``: rays cast against the
+        turning parts (one per beam and line when ideal, the footprint's sub-rays
+        when realistic); ``sensor_model``: the range/intensity/noise model;
+        ``footprint_and_bookkeeping``: the rest of the line source's time
+        (rotating rays, combining sub-rays, merging with the rig's hits).
+        """
+        c = self.caster
+        other_s = max(self.lines_s - c.cast_turning_s - self.sensor_model_s, 0.0)
+
+        def phase(rays, seconds):
+            out = {"rays": int(rays), "s": round(seconds, 6)}
+            if rays and seconds > 0:
+                out["rays_per_s"] = round(rays / seconds)
+            return out
+
+        return {"beams": int(self.n_beams_taken),
+                "rig_cast_once": phase(c.n_rays_fixed, c.cast_fixed_s),
+                "turning_cast": phase(c.n_rays_cast, c.cast_turning_s),
+                "sensor_model": {"s": round(self.sensor_model_s, 6)},
+                "footprint_and_bookkeeping": {"s": round(other_s, 6)}}
 
     def cast_lines(self, table_rad: np.ndarray, rng: np.random.Generator, *,
                    beam_time_s: np.ndarray | None = None, progress: Progress | None = None) -> Lines:
@@ -150,8 +180,10 @@ class SimulatedLidar:
             scan's start (the sensor's warm-up drift); None: all at the start.
           progress: called with (lines done, lines total).
         """
+        t_start = time.perf_counter()
         theta = np.asarray(table_rad, dtype=np.float64)
         n_lines, n_beams = len(theta), len(self.beam_angles_rad)
+        self.n_beams_taken += n_lines * n_beams
         if self.ideal:
             ids = np.broadcast_to(np.arange(n_beams), (n_lines, n_beams))
             hits = self.caster.cast(ids, theta, progress=progress)
@@ -160,16 +192,20 @@ class SimulatedLidar:
             intensity = None
         else:
             fp, geom = self._footprints(theta, rng, progress)
+            t = time.perf_counter()
             range_m, status, intensity = apply_sensor(fp.range_m, fp.power, fp.cos_incidence,
                                                       fp.spread_m, self.lidar, self.model, rng,
                                                       hit_class=self.scene.geom_class[geom], line_time_s=beam_time_s)
+            self.sensor_model_s += time.perf_counter() - t
             too_near = int((status == BeamStatus.TOO_NEAR).sum())
             if too_near > (status == BeamStatus.OK).sum():
                 log.warning("%d beams returned nearer than %s's range_min_m (%g m), more than gave a "
                             "range: move the sensor back ([rig] lidar_distance_m = %g m now)", too_near,
                             self.lidar.name, self.lidar.range_min_m, self.scene.rig.lidar_distance_m)
-        return Lines(range_m=as_float32_ranges(range_m), status=status, intensity=intensity,
-                     hit_class=self.scene.geom_class[geom], geom_id=geom)
+        lines = Lines(range_m=as_float32_ranges(range_m), status=status, intensity=intensity,
+                      hit_class=self.scene.geom_class[geom], geom_id=geom)
+        self.lines_s += time.perf_counter() - t_start
+        return lines
 
     # --- the footprint --------------------------------------------------------
 
