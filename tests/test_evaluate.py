@@ -241,3 +241,19 @@ def test_scan_evaluate_draws_the_error_picture_or_says_why_not(tmp_path, stalk, 
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 2 and lines[1].startswith("evaluation: ")
     assert not (tmp_path / "quiet.las.error.png").exists()
+
+
+def test_traits_beside_the_metrics_give_the_serial_answer(tmp_path, stalk):
+    from plantsim.evaluation.metrics import sample_surface
+    from plantsim.plant.mesh import load_plant
+
+    (tmp_path / "stalk.traits.json").write_text(json.dumps(STALK_TRUTH))
+    plant = load_plant(stalk)
+    pts, _ = sample_surface(plant.vertices_turntable, plant.faces, 4000, rng=1)
+    pts = pts + np.random.default_rng(2).normal(scale=0.0005, size=pts.shape)
+    options = evaluate.EvaluationOptions(n_surface_samples=5000)
+    serial = evaluate.evaluate_cloud(pts, plant, options=options, threads=1).to_dict()
+    beside = evaluate.evaluate_cloud(pts, plant, options=options, threads=2).to_dict()
+    serial.pop("time_s"), beside.pop("time_s")
+    assert serial["traits"]["truth"] == str(tmp_path / "stalk.traits.json")
+    assert json.dumps(serial, sort_keys=True) == json.dumps(beside, sort_keys=True)

@@ -19,6 +19,7 @@ it is moved to the turntable frame with the run's ``T_turntable_mesh``.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import json
 import logging
@@ -247,11 +248,21 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
     with_traits = found is not None and options.traits
     n_metric = len(pts) + options.n_surface_samples
     total = n_metric + (_TRAITS_WORK_PER_POINT * len(pts) if with_traits else 0)
-    measured = metrics.cloud_mesh_metrics(
-        pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
-        band_height=options.band_height, n_surface_samples=options.n_surface_samples,
-        rng=np.random.default_rng(options.seed), proximity=proximity, workers=workers,
-        progress=None if progress is None else (lambda done, _n: progress(done, total)))
+    # With two threads or more, the traits are extracted beside the metrics: both
+    # spend much of their time in numpy and scipy code that releases the GIL.
+    pool = (concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="traits")
+            if with_traits and workers >= 2 else None)
+    try:
+        estimate_future = (None if pool is None else
+                           pool.submit(traits.extract_traits, pts, settings=options.trait_settings))
+        measured = metrics.cloud_mesh_metrics(
+            pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
+            band_height=options.band_height, n_surface_samples=options.n_surface_samples,
+            rng=np.random.default_rng(options.seed), proximity=proximity, workers=workers,
+            progress=None if progress is None else (lambda done, _n: progress(done, total)))
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     comparison = estimate = None
     if with_traits:
         try:
@@ -260,7 +271,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             raise ValueError(f"truth_path: {found} is not valid JSON: {exc}") from exc
         try:
             reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
-            estimate = traits.extract_traits(pts, settings=options.trait_settings)
+            estimate = (traits.extract_traits(pts, settings=options.trait_settings)
+                        if estimate_future is None else estimate_future.result())
             comparison = traits.compare_traits(estimate, reference)
         except (ValueError, KeyError, TypeError) as exc:
             # A truth file in another schema costs the trait comparison, never the scan.
