@@ -448,9 +448,6 @@ def to_e57(cloud: PointCloud) -> bytes:
         if len(values) and int(np.max(values)) > 0xFFFF:
             raise OverflowError(f"{name} reaches {int(np.max(values))}, above the 65535 an E57 "
                                 "index holds here; write .las or .ply instead")
-    if len(cloud) == 0:
-        raise ValueError("an E57 scan needs at least one point (libE57Format writes no empty "
-                         "cartesian bounds); the cloud is empty")
     pts = np.ascontiguousarray(cloud.points_turntable, dtype=np.float64)
     data = {
         "cartesianX": pts[:, 0].copy(), "cartesianY": pts[:, 1].copy(), "cartesianZ": pts[:, 2].copy(),
@@ -462,7 +459,9 @@ def to_e57(cloud: PointCloud) -> bytes:
         path = os.path.join(folder, "cloud.e57")
         e57 = pye57.E57(path, mode="w")
         try:
-            e57.write_scan_raw(data, name="plantsim scan, turntable frame (metres)")
+            # An empty cloud is a file with no scan (pye57 cannot bound an empty one).
+            if len(cloud):
+                e57.write_scan_raw(data, name="plantsim scan, turntable frame (metres)")
         finally:
             e57.close()
         with open(path, "rb") as handle:
@@ -470,9 +469,9 @@ def to_e57(cloud: PointCloud) -> bytes:
 
 
 def from_e57(data: bytes) -> PointCloud:
-    """Reads the first scan of an E57: x y z, intensity and the row/column indices
-    (as beam and line); the class is unknown (:attr:`HitClass.NONE`), time, range
-    and angle are zero."""
+    """Reads the first scan of an E57 (none: an empty cloud): x y z, intensity and
+    the row/column indices (as beam and line); the class is unknown
+    (:attr:`HitClass.NONE`), time, range and angle are zero."""
     pye57 = _pye57()
     with tempfile.TemporaryDirectory(prefix="plantsim-e57-") as folder:
         path = os.path.join(folder, "cloud.e57")
@@ -480,7 +479,8 @@ def from_e57(data: bytes) -> PointCloud:
             handle.write(data)
         e57 = pye57.E57(path)
         try:
-            scan = e57.read_scan_raw(0, ignore_unsupported_fields=True)
+            scan = (e57.read_scan_raw(0, ignore_unsupported_fields=True) if e57.scan_count else
+                    {name: np.zeros(0) for name in ("cartesianX", "cartesianY", "cartesianZ")})
         finally:
             e57.close()
     xyz = np.column_stack([scan["cartesianX"], scan["cartesianY"], scan["cartesianZ"]])
