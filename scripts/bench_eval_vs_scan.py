@@ -1,13 +1,22 @@
 """Evaluation time against scan time for the bundled maize (issue 12 item 3).
 
 Usage:
-    PYTHONPATH=. python scripts/bench_eval_vs_scan.py [--steps 1 0.25] [--runs 3]
+    PYTHONPATH=. python scripts/bench_eval_vs_scan.py [--steps 1 0.25] [--runs 3] [--threads N]
+                                                      [--grid]
 
-For each turntable step: the scan phase (step-and-shoot cast + reconstruction,
-ideal sensor) and the evaluation of its plant points (``evaluate_cloud``: exact
-cloud->mesh distance, coverage, traits), with the libigl backend and with the
-hand-written grid kernel (the reference). Prints medians of ``--runs`` runs and
-the ratio evaluation / scan (target: <= 1 with libigl).
+For each turntable step and sensor (ideal, realistic), as ``plantsim scan
+--evaluate`` runs them: the scan phases (``run_scan``: load, scene, cast,
+reconstruct; the sum of its ``timings_s``) and the evaluation (``evaluate_scan``
+with the default options: exact cloud->mesh distance through libigl, coverage,
+traits against ``maize.traits.json``), each the median of ``--runs`` runs, scan
+and evaluation alternating so both see the same machine load. The evaluation is
+split into its metrics (distances and coverage, timed again alone) and what the
+rest adds (the traits; with two threads or more they run beside the metrics, so
+this is less than their own time). The target is evaluation / scan <= 1. The
+machine's load average is printed: on a shared machine, compare ratios only.
+
+``--grid`` also times the hand-written grid kernel (the exact reference) on the
+same points and prints the largest difference of the two distances.
 """
 
 from __future__ import annotations
@@ -16,28 +25,20 @@ import argparse
 import os
 import statistics
 import time
-from pathlib import Path
 
-from plantsim.cloud.reconstruct import reconstruct
+import numpy as np
+
 from plantsim.evaluation import metrics
-from plantsim.evaluation.evaluate import EvaluationOptions, evaluate_cloud
-from plantsim.plant.mesh import load_plant
-from plantsim.rig.geometry import RigGeometry
-from plantsim.rig.scene import build_scene
-from plantsim.scan.pipeline import step_and_shoot
-from plantsim.scan.schedule import StepScan
-from plantsim.sensor.spec import URG_04LX_UG01
-
-MAIZE = Path(__file__).resolve().parents[1] / "assets" / "maize.stl"
+from plantsim.evaluation.evaluate import EvaluationOptions, evaluate_scan, evaluation_threads
+from plantsim.evaluation.study import SCAN_PHASES
+from plantsim.scan.config import config_from_dict
+from plantsim.scan.pipeline import run_scan
 
 
-def median_time(fn, runs):
-    times, result = [], None
-    for _ in range(runs):
-        t = time.perf_counter()
-        result = fn()
-        times.append(time.perf_counter() - t)
-    return statistics.median(times), result
+def timed(fn):
+    t = time.perf_counter()
+    out = fn()
+    return time.perf_counter() - t, out
 
 
 def main() -> None:
@@ -45,66 +46,50 @@ def main() -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=float, nargs="+", default=[1.0, 0.25], help="degrees")
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--no-realistic", action="store_true",
-                        help="skip the realistic-sensor runs (run_one, as plantsim study)")
+    parser.add_argument("--threads", type=int, default=None, help="scan and evaluation threads")
+    parser.add_argument("--sensors", nargs="+", default=["ideal", "realistic"],
+                        choices=["ideal", "realistic"])
+    parser.add_argument("--grid", action="store_true", help="also time the grid reference kernel")
     args = parser.parse_args()
 
-    plant = load_plant(MAIZE)
-    scene = build_scene(RigGeometry(), plant)
-    print(f"bundled maize ({len(plant.faces):,} triangles), {os.cpu_count()} cores, "
-          f"median of {args.runs} runs")
-    print("eval = evaluate_cloud (metrics + traits); metrics = cloud_mesh_metrics alone")
-    print(f"{'step deg':>8} {'points':>8} {'scan s':>8} {'eval igl s':>11} {'eval grid s':>12} "
-          f"{'metrics igl s':>14} {'metrics grid s':>15} {'eval igl/scan':>14} "
-          f"{'metrics igl/scan':>17} {'max |d_igl - d_grid| m':>23}")
-    original = metrics.MeshProximity.__init__
+    threads = evaluation_threads(args.threads)
+    print(f"bundled maize, {os.cpu_count()} cores, {threads} threads, median of {args.runs} runs, "
+          f"load average {os.getloadavg()[0]:.1f} at the start")
+    print("scan = run_scan's phases; eval = evaluate_scan; metrics = distances + coverage alone; "
+          "+traits = eval - metrics; target eval/scan <= 1")
+    print(f"{'step deg':>8} {'sensor':>9} {'plant pts':>9} {'scan s':>7} {'eval s':>7} "
+          f"{'metrics s':>9} {'+traits s':>9} {'eval/scan':>9}  target")
     for step in args.steps:
-        schedule = StepScan(step_deg=step)
-
-        def scan():
-            return reconstruct(step_and_shoot(scene, URG_04LX_UG01, schedule))
-
-        t_scan, cloud = median_time(scan, args.runs)
-        pts = cloud.plant_only().points_turntable
-        times, dists, mtimes = {}, {}, {}
-        for backend in ("igl", "grid"):
-            def init(self, *a, _backend=backend, **k):
-                original(self, *a, **{**k, "backend": _backend})
-
-            metrics.MeshProximity.__init__ = init
-            try:
-                times[backend], _ = median_time(
-                    lambda: evaluate_cloud(pts, plant, options=EvaluationOptions()), args.runs)
-                mtimes[backend], _ = median_time(lambda: metrics.cloud_mesh_metrics(
-                    pts, plant.vertices_turntable, plant.faces, rng=0), args.runs)
-                dists[backend] = metrics.MeshProximity(plant.vertices_turntable,
-                                                       plant.faces).query(pts).distance
-            finally:
-                metrics.MeshProximity.__init__ = original
-        diff = float(abs(dists["igl"] - dists["grid"]).max())
-        print(f"{step:8g} {len(pts):8,} {t_scan:8.3f} {times['igl']:11.3f} {times['grid']:12.3f} "
-              f"{mtimes['igl']:14.3f} {mtimes['grid']:15.3f} {times['igl'] / t_scan:14.2f} "
-              f"{mtimes['igl'] / t_scan:17.2f} {diff:23.2e}")
-    if not args.no_realistic:
-        realistic(args.steps, args.runs)
+        for sensor in args.sensors:
+            config = config_from_dict({"scan": {"step_deg": step}, "sensor": sensor,
+                                       **({"threads": args.threads} if args.threads else {})})
+            scans, evals, mets = [], [], []
+            for _ in range(args.runs):
+                result = run_scan(config)
+                scans.append(sum(result.timings_s.get(k, 0.0) for k in SCAN_PHASES))
+                t_eval, ev = timed(lambda: evaluate_scan(result, options=EvaluationOptions()))
+                evals.append(t_eval)
+                pts = result.cloud.plant_only().points_turntable
+                t_met, _ = timed(lambda: metrics.cloud_mesh_metrics(
+                    pts, result.plant.vertices_turntable, result.plant.faces,
+                    rng=np.random.default_rng(0), workers=threads))
+                mets.append(t_met)
+            s, e, m = (statistics.median(x) for x in (scans, evals, mets))
+            verdict = "ok" if e <= s else "MISSED"
+            load = os.getloadavg()[0]
+            print(f"{step:8g} {sensor:>9} {len(pts):9,} {s:7.2f} {e:7.2f} {m:9.2f} "
+                  f"{max(e - m, 0.0):9.2f} {e / s:9.2f}  {verdict} (load {load:.1f})", flush=True)
+            if args.grid:
+                grid_reference(pts, result.plant)
 
 
-def realistic(steps, runs) -> None:
-    """As plantsim study runs them: a realistic scan (its phases) and --evaluate's evaluation."""
-    from plantsim.evaluation.study import Sweep, run_one
-
-    print("\nrealistic sensor, as plantsim study / scan --evaluate run them (libigl backend)")
-    print(f"{'step deg':>8} {'scan phases s':>14} {'evaluation s':>13} {'eval/scan':>10}")
-    for step in steps:
-        sweep = Sweep(plants=("maize",), grid=(("step_deg", (step,)),))
-        run = sweep.runs()[0]
-        rows = [run_one(run, sweep.config_data(run), sweep.evaluation) for _ in range(runs)]
-        if rows[0].get("error"):
-            print(f"{step:8g} failed: {rows[0]['error']}")
-            continue
-        scan_s = statistics.median(r["wall_time_s"] for r in rows)
-        eval_s = statistics.median(r["evaluate_time_s"] for r in rows)
-        print(f"{step:8g} {scan_s:14.3f} {eval_s:13.3f} {eval_s / scan_s:10.2f}")
+def grid_reference(pts, plant) -> None:
+    """libigl against the grid kernel on one cloud: time and largest difference."""
+    v, f = plant.vertices_turntable, plant.faces
+    t_igl, igl_d = timed(lambda: metrics.MeshProximity(v, f, backend="igl").query(pts).distance)
+    t_grid, grid_d = timed(lambda: metrics.MeshProximity(v, f, backend="grid").query(pts).distance)
+    print(f"{'':8} distances: libigl {t_igl:.2f} s, grid {t_grid:.2f} s, "
+          f"max |d_igl - d_grid| {float(np.abs(igl_d - grid_d).max()):.1e} m")
 
 
 if __name__ == "__main__":

@@ -85,7 +85,7 @@ BAD_CASES = {
                          "range_min_m must be less than range_max_m"),
     "unknown config key": (["good.stl", "--config", "typo.toml"], "unknown key(s) stepdeg in [scan]"),
     "missing output folder": (["good.stl", "-o", "nope/scan.las"], "output folder does not exist"),
-    "unknown output format": (["good.stl", "-o", "scan.e57"], "unknown point-cloud format"),
+    "unknown output format": (["good.stl", "-o", "scan.fls"], "unknown point-cloud format"),
 }
 
 

@@ -129,3 +129,131 @@ def test_evaluation_options_are_validated():
         evaluate.EvaluationOptions(seed=-1)
     with pytest.raises(TypeError):
         evaluate.EvaluationOptions(0.002)  # keyword-only
+
+
+def _noisy_box_cloud(v, f, n=3000):
+    from plantsim.evaluation.metrics import sample_surface
+
+    pts, _ = sample_surface(v, f, n, rng=3)
+    return pts + np.random.default_rng(4).normal(scale=0.001, size=pts.shape)
+
+
+def test_progress_reaches_the_end_and_threads_do_not_change_the_answer(box_mesh):
+    v, f = box_mesh
+    plant = plant_from_arrays(v, f, placement="none")
+    pts = _noisy_box_cloud(v, f)
+    options = evaluate.EvaluationOptions(n_surface_samples=20_000)
+    seen = []
+    many = evaluate.evaluate_cloud(pts, plant, options=options, threads=None,
+                                   progress=lambda done, total: seen.append((done, total)))
+    one = evaluate.evaluate_cloud(pts, plant, options=options, threads=1)
+    a, b = many.to_dict(), one.to_dict()
+    a.pop("time_s"), b.pop("time_s")
+    assert a == b
+    # Distances, then coverage samples; one total throughout, never going back.
+    totals = {t for _, t in seen}
+    assert totals == {len(pts) + 20_000}
+    done = [d for d, _ in seen]
+    assert done == sorted(done) and done[-1] == len(pts) + 20_000
+    assert any(d == len(pts) for d in done)  # the distance part ends before coverage starts
+
+
+def test_the_distances_are_the_exact_reference_kernels(box_mesh):
+    from plantsim.evaluation import metrics
+
+    v, f = box_mesh
+    plant = plant_from_arrays(v, f, placement="none")
+    pts = _noisy_box_cloud(v, f, 2000)
+    options = evaluate.EvaluationOptions(n_surface_samples=5000)
+    grid = metrics.MeshProximity(plant.vertices_turntable, plant.faces, backend="grid")
+    igl = metrics.MeshProximity(plant.vertices_turntable, plant.faces, backend="igl")
+    by_grid = evaluate.evaluate_cloud(pts, plant, options=options, proximity=grid).metrics
+    by_igl = evaluate.evaluate_cloud(pts, plant, options=options, proximity=igl).metrics
+    for name in ("median", "p95", "max", "mean", "rms", "coverage", "chamfer"):
+        assert getattr(by_igl, name) == pytest.approx(getattr(by_grid, name), rel=0, abs=1e-15)
+
+
+def test_threads_are_checked_capped_at_the_cores_and_taken_from_the_scan(box_mesh, monkeypatch):
+    from types import SimpleNamespace
+
+    from plantsim.cloud.reconstruct import PointCloud
+    from plantsim.evaluation import metrics
+
+    cores = evaluate.evaluation_threads(None)
+    assert cores >= 1 and evaluate.evaluation_threads(10_000) == cores
+    assert evaluate.evaluation_threads(1) == 1
+    for bad in (0, -1, 1.5, True, "2"):
+        with pytest.raises(ValueError, match=r"threads must be a positive integer or None \(all cores\)"):
+            evaluate.evaluation_threads(bad)
+    v, f = box_mesh
+    plant = plant_from_arrays(v, f, placement="none")
+    pts = _noisy_box_cloud(v, f, 500)
+    n = len(pts)
+    cloud = PointCloud(points_turntable=pts, hit_class=np.ones(n, np.uint8),
+                       beam_index=np.zeros(n, np.uint16), scan_index=np.zeros(n, np.uint32),
+                       turntable_angle_rad=np.zeros(n), range_m=np.ones(n), time_s=np.zeros(n))
+    used = []
+    real = metrics.cloud_mesh_metrics
+    monkeypatch.setattr(metrics, "cloud_mesh_metrics",
+                        lambda *a, **k: used.append(k["workers"]) or real(*a, **k))
+    result = SimpleNamespace(cloud=cloud, plant=plant, config=SimpleNamespace(threads=1))
+    evaluate.evaluate_scan(result, options=evaluate.EvaluationOptions(n_surface_samples=100))
+    result.config.threads = None
+    evaluate.evaluate_scan(result, options=evaluate.EvaluationOptions(n_surface_samples=100))
+    assert used == [1, cores]
+
+
+def test_scan_evaluate_draws_the_error_picture_or_says_why_not(tmp_path, stalk, capsys, monkeypatch):
+    from plantsim.cloud import render
+
+    out = tmp_path / "ev.las"
+    assert main(["scan", str(stalk), "-o", str(out), "--step-deg", "30", "--evaluate"]) == 0
+    line = capsys.readouterr().out.splitlines()[-1]
+    picture = tmp_path / "ev.las.error.png"
+    if line.startswith("error picture: skipped"):
+        print(f"no offscreen OpenGL here, the picture's pixels are not checked: {line}")
+        assert not picture.exists()
+    else:
+        assert line.startswith(f"error picture: {picture} (plant points by distance to the mesh, "
+                               "blue 0 mm -> red >= ")
+        from test_render import _decode_png
+
+        image = _decode_png(picture.read_bytes())
+        assert image.shape == (720, 960, 3) and image.std() > 10  # not uniform
+
+    # No GL backend: one line, the scan and its sidecar written all the same.
+    def no_gl(*args, **kwargs):
+        raise render.RenderError("no offscreen OpenGL: egl: missing; osmesa: missing. Install EGL")
+
+    monkeypatch.setattr(render, "error_picture_of", no_gl)
+    out2 = tmp_path / "nogl.las"
+    assert main(["scan", str(stalk), "-o", str(out2), "--step-deg", "30", "--evaluate"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1] == ("error picture: skipped (no offscreen OpenGL: egl: missing; osmesa: missing. "
+                         "Install EGL); --no-pictures silences this")
+    assert out2.exists() and (tmp_path / "nogl.las.json").exists()
+    assert not (tmp_path / "nogl.las.error.png").exists()
+
+    # --no-pictures: neither picture nor line.
+    out3 = tmp_path / "quiet.las"
+    assert main(["scan", str(stalk), "-o", str(out3), "--step-deg", "30", "--evaluate",
+                 "--no-pictures"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 and lines[1].startswith("evaluation: ")
+    assert not (tmp_path / "quiet.las.error.png").exists()
+
+
+def test_traits_beside_the_metrics_give_the_serial_answer(tmp_path, stalk):
+    from plantsim.evaluation.metrics import sample_surface
+    from plantsim.plant.mesh import load_plant
+
+    (tmp_path / "stalk.traits.json").write_text(json.dumps(STALK_TRUTH))
+    plant = load_plant(stalk)
+    pts, _ = sample_surface(plant.vertices_turntable, plant.faces, 4000, rng=1)
+    pts = pts + np.random.default_rng(2).normal(scale=0.0005, size=pts.shape)
+    options = evaluate.EvaluationOptions(n_surface_samples=5000)
+    serial = evaluate.evaluate_cloud(pts, plant, options=options, threads=1).to_dict()
+    beside = evaluate.evaluate_cloud(pts, plant, options=options, threads=2).to_dict()
+    serial.pop("time_s"), beside.pop("time_s")
+    assert serial["traits"]["truth"] == str(tmp_path / "stalk.traits.json")
+    assert json.dumps(serial, sort_keys=True) == json.dumps(beside, sort_keys=True)

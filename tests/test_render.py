@@ -98,3 +98,22 @@ def test_error_picture_and_cli(scan, tmp_path):
     with pytest.raises(ValueError, match="colour must be 'class' or 'error', got 'rgb'"):
         render.render_cloud(cloud, rig, plant, colour="rgb")
     assert main(["render", "-o", str(tmp_path / "x.jpg")]) == 2
+
+
+def test_error_picture_states_its_scale_and_draws_a_colour_bar(scan):
+    cloud, plant, rig, _ = scan
+    picture = _render_or_skip(render.error_picture_of, cloud, plant, rig, error_max_m=0.004,
+                              view=render.View(width=320, height=240))
+    assert picture.error_max_m == 0.004
+    assert picture.scale_text() == "blue 0 mm -> red >= 4 mm"
+    image = _decode_png(picture.png)
+    assert image.std() > 10  # not uniform
+    # The colour bar at the right edge: red at its top, blue at its bottom.
+    bar_w = 320 // 48
+    column = image[:, 320 - 2 * bar_w + 1].astype(int)
+    top, bottom = column[(240 - 120) // 2], column[(240 - 120) // 2 + 119]  # half the height
+    assert top[0] > 200 and top[2] < 60 and bottom[2] > 200 and bottom[0] < 60
+    # The default scale is the measured 95th percentile of the drawn points.
+    auto = _render_or_skip(render.error_picture_of, cloud, plant, rig,
+                           view=render.View(width=160, height=120))
+    assert 0 < auto.error_max_m < 0.05

@@ -45,7 +45,7 @@ def scan_overrides(args: argparse.Namespace) -> dict:
     return out
 
 
-def _progress_bar(total_label: str):
+def _progress_bar(total_label: str, unit: str = "line"):
     """A tqdm bar on a terminal, nothing otherwise. Returns (callback, close)."""
     if not sys.stderr.isatty():
         return None, lambda: None
@@ -56,7 +56,7 @@ def _progress_bar(total_label: str):
     def update(done: int, total: int) -> None:
         nonlocal bar
         if bar is None:
-            bar = tqdm(total=total, unit="line", desc=total_label, leave=False, file=sys.stderr)
+            bar = tqdm(total=total, unit=unit, desc=total_label, leave=False, file=sys.stderr)
         bar.update(done - bar.n)
 
     return update, lambda: bar.close() if bar is not None else None
@@ -95,12 +95,33 @@ def cmd_scan(args: argparse.Namespace) -> int:
     if args.evaluate:
         from plantsim.scan.pipeline import with_evaluation
 
-        result = with_evaluation(result)
+        progress, close = _progress_bar("evaluate", unit="pt")
+        try:
+            result = with_evaluation(result, progress=progress)
+        finally:
+            close()
     path = write_result(result)
     print(summary_line(result, path, time.perf_counter() - t0))
     if result.evaluation is not None:
         print(_evaluation_line(result.evaluation))
+        if not _opt(args, "no_pictures"):
+            print(_error_picture_line(result, f"{path}.error.png"))
     return 0
+
+
+def _error_picture_line(result, path: str) -> str:
+    """Writes the cloud-vs-mesh error picture; one line saying where, or why not."""
+    from plantsim.cloud.export import write_atomic
+    from plantsim.cloud.render import RenderError, error_picture_of
+
+    if result.evaluation.n_points == 0:
+        return "error picture: skipped, no point on the plant"
+    try:
+        picture = error_picture_of(result.cloud, result.plant, result.config.rig)
+        write_atomic(path, picture.png)
+    except (RenderError, OSError) as exc:  # a picture never costs the scan
+        return f"error picture: skipped ({str(exc).splitlines()[0]}); --no-pictures silences this"
+    return f"error picture: {path} (plant points by distance to the mesh, {picture.scale_text()})"
 
 
 def summary_line(result, path, seconds: float) -> str:
@@ -256,7 +277,10 @@ def build_parser() -> argparse.ArgumentParser:
                       help="measure the scan against its truth: the plant points' distance to the "
                            "placed mesh, Chamfer distance, coverage and, when an exact-traits file "
                            "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh, "
-                           "trait errors; written to the sidecar's \"evaluation\" and timings_s")
+                           "trait errors; written to the sidecar's \"evaluation\" and timings_s, "
+                           "with a picture of the error in OUT.error.png (when EGL or OSMesa is present)")
+    scan.add_argument("--no-pictures", action="store_true",
+                      help="with --evaluate: do not draw OUT.error.png")
     scan.set_defaults(func=cmd_scan)
 
     reconstruct = sub.add_parser(

@@ -1,4 +1,4 @@
-"""Point-cloud files: LAS/LAZ 1.4, PLY, PCD and TXT/XYZ, chosen by extension.
+"""Point-cloud files: LAS/LAZ 1.4, PLY, PCD, TXT/XYZ/PTS and E57, chosen by extension.
 
 Each writer is checked against the readers people use (tests/test_interop.py):
 LAS 1.4 sets the global-encoding WKT bit (PDAL <= 2.7.1 refuses files without it)
@@ -12,7 +12,9 @@ intensity (PCL's ``PointXYZI``) and a uint32 ``label`` holding the class code
 (``PointXYZL``). TXT starts with a ``//X Y Z ...`` line that CloudCompare takes
 as column names (``Scalar_`` ones as scalar fields, never colours); XYZ is the same
 columns without a header (Open3D reads x y z from it); PTS is a point count and
-``x y z intensity`` (Open3D and CloudCompare read both).
+``x y z intensity`` (Open3D and CloudCompare read both). E57 (the ``e57`` extra,
+pye57 over libE57Format) has x y z, intensity and the beam/line as E57's row/column
+indices.
 
 Exporters take a :class:`PointCloud` and return bytes (they never touch the
 disk); :func:`write_cloud` writes a cloud and its sidecar as a unit through
@@ -415,14 +417,95 @@ def from_txt(data: bytes) -> PointCloud:
     return _from_rows(rows)
 
 
+# --- E57 (ASTM E2807, through pye57 / libE57Format) ------------------------
+
+def _pye57():
+    try:
+        import pye57
+    except ImportError:
+        raise RuntimeError("writing or reading .e57 needs pye57: pip install 'plantsim[e57]'"
+                           ) from None
+    return pye57
+
+
+def to_e57(cloud: PointCloud) -> bytes:
+    """E57: one structured scan in the turntable frame (identity pose).
+
+    Fields: ``cartesianX/Y/Z`` (metres; pye57 stores single-precision floats, as
+    the PLY default: 0.1 um at 1 m), ``intensity`` (float, [0, 1]),
+    ``rowIndex`` = beam within its line and ``columnIndex`` = scan line, E57's
+    own grid indices for a line scanner. E57's standard point fields hold no
+    class, time, range or turntable angle (pye57 writes no extensions): write
+    ``--plant-only`` or a LAS for those.
+
+    Raises:
+      RuntimeError: pye57 is not installed (names the extra).
+      OverflowError: a beam or line index above 65535 (E57's index fields
+        here are 16-bit); never wrapped.
+    """
+    pye57 = _pye57()
+    for name, values in (("beam_index", cloud.beam_index), ("scan_index", cloud.scan_index)):
+        if len(values) and int(np.max(values)) > 0xFFFF:
+            raise OverflowError(f"{name} reaches {int(np.max(values))}, above the 65535 an E57 "
+                                "index holds here; write .las or .ply instead")
+    pts = np.ascontiguousarray(cloud.points_turntable, dtype=np.float64)
+    data = {
+        "cartesianX": pts[:, 0].copy(), "cartesianY": pts[:, 1].copy(), "cartesianZ": pts[:, 2].copy(),
+        "intensity": _columns(cloud)["intensity"].astype(np.float64),
+        "rowIndex": cloud.beam_index.astype(np.uint16),
+        "columnIndex": cloud.scan_index.astype(np.uint16),
+    }
+    with tempfile.TemporaryDirectory(prefix="plantsim-e57-") as folder:
+        path = os.path.join(folder, "cloud.e57")
+        e57 = pye57.E57(path, mode="w")
+        try:
+            # An empty cloud is a file with no scan (pye57 cannot bound an empty one).
+            if len(cloud):
+                e57.write_scan_raw(data, name="plantsim scan, turntable frame (metres)")
+        finally:
+            e57.close()
+        with open(path, "rb") as handle:
+            return handle.read()
+
+
+def from_e57(data: bytes) -> PointCloud:
+    """Reads the first scan of an E57 (none: an empty cloud): x y z, intensity and
+    the row/column indices (as beam and line); the class is unknown
+    (:attr:`HitClass.NONE`), time, range and angle are zero."""
+    pye57 = _pye57()
+    with tempfile.TemporaryDirectory(prefix="plantsim-e57-") as folder:
+        path = os.path.join(folder, "cloud.e57")
+        with open(path, "wb") as handle:
+            handle.write(data)
+        e57 = pye57.E57(path)
+        try:
+            scan = (e57.read_scan_raw(0, ignore_unsupported_fields=True) if e57.scan_count else
+                    {name: np.zeros(0) for name in ("cartesianX", "cartesianY", "cartesianZ")})
+        finally:
+            e57.close()
+    xyz = np.column_stack([scan["cartesianX"], scan["cartesianY"], scan["cartesianZ"]])
+    n = len(xyz)
+    cols = {"classification": np.zeros(n, np.uint8),
+            "intensity": np.asarray(scan.get("intensity", np.zeros(n)), dtype=np.float32),
+            "beam_index": scan.get("rowIndex", np.zeros(n)),
+            "scan_index": scan.get("columnIndex", np.zeros(n)),
+            "turntable_angle_rad": np.zeros(n), "range_m": np.zeros(n), "time": np.zeros(n)}
+    return _cloud_from_columns(xyz, cols)
+
+
 EXPORTERS: dict[str, Callable[[PointCloud], bytes]] = {
     ".las": to_las, ".laz": to_laz, ".ply": to_ply, ".pcd": to_pcd, ".txt": to_txt,
-    ".xyz": to_xyz, ".pts": to_pts}
+    ".xyz": to_xyz, ".pts": to_pts, ".e57": to_e57}
 READERS: dict[str, Callable[[bytes], PointCloud]] = {
     ".las": from_las, ".laz": from_las, ".ply": from_ply, ".pcd": from_pcd, ".txt": from_txt,
-    ".xyz": from_txt, ".pts": from_pts}
+    ".xyz": from_txt, ".pts": from_pts, ".e57": from_e57}
 # Formats that carry only x y z and intensity.
 LOSSY_FORMATS = frozenset({".pts"})
+# Formats that carry x y z, intensity and the beam and line indices (no class, time,
+# range or angle).
+INDEXED_FORMATS = frozenset({".e57"})
+# Formats written through an optional extra: the extra to install.
+EXTRA_OF_FORMAT = {".laz": "laz", ".e57": "e57"}
 
 
 def check_output_path(path: str | os.PathLike) -> Path:
@@ -431,6 +514,7 @@ def check_output_path(path: str | os.PathLike) -> Path:
     Raises:
       ValueError: unknown extension (lists the valid ones).
       FileNotFoundError: the folder does not exist.
+      RuntimeError: ``.e57`` without pye57 (names the extra).
     """
     path = Path(path)
     if path.suffix.lower() not in EXPORTERS:
@@ -441,6 +525,8 @@ def check_output_path(path: str | os.PathLike) -> Path:
         raise FileNotFoundError(f"output folder does not exist: {folder}")
     if path.is_dir():
         raise ValueError(f"output path is a folder: {path}")
+    if path.suffix.lower() == ".e57":
+        _pye57()  # a missing extra fails before the scan, not after it
     return path
 
 

@@ -146,7 +146,8 @@ def _fan(model: mujoco.MjModel, data: mujoco.MjData, rig: RigGeometry, plant, li
 def render_scene(rig: RigGeometry, plant=None, *, points_turntable: np.ndarray | None = None,
                  point_rgba: np.ndarray | None = None, lidar=None, fan_rays: int = 41,
                  view: View = View(), point_radius_m: float = 0.0015,
-                 max_points: int = 20_000, turntable_angle_rad: float = 0.0) -> np.ndarray:
+                 max_points: int = 20_000, turntable_angle_rad: float = 0.0,
+                 overlay: str | None = None) -> np.ndarray:
     """Draws the rig, the plant, the fan and points; returns an (h, w, 3) uint8 image.
 
     Args:
@@ -160,6 +161,7 @@ def render_scene(rig: RigGeometry, plant=None, *, points_turntable: np.ndarray |
       point_radius_m: radius of the spheres drawn for points.
       max_points: at most this many points are drawn (an even subsample).
       turntable_angle_rad: the turntable's angle (points turn with it).
+      overlay: text drawn in the top-left corner (lines split by "\n"), or None.
 
     Raises:
       RenderError: no offscreen OpenGL context (names what to install).
@@ -227,6 +229,9 @@ def render_scene(rig: RigGeometry, plant=None, *, points_turntable: np.ndarray |
             scene.ngeom += 1
         viewport = mujoco.MjrRect(0, 0, view.width, view.height)
         mujoco.mjr_render(viewport, scene, mr_context)
+        if overlay:
+            mujoco.mjr_overlay(mujoco.mjtFont.mjFONT_NORMAL, mujoco.mjtGridPos.mjGRID_TOPLEFT,
+                               viewport, overlay, "", mr_context)
         image = np.empty((view.height, view.width, 3), dtype=np.uint8)
         mujoco.mjr_readPixels(image, None, viewport, mr_context)
         mr_context.free()
@@ -254,6 +259,13 @@ def png_bytes(image: np.ndarray) -> bytes:
     return out.getvalue()
 
 
+def _even_subsample(n: int, max_points: int) -> np.ndarray:
+    """Indices of an even subsample of at most ``max_points`` of ``n`` (all when n <= max)."""
+    if n <= max_points:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, max_points).round().astype(int))
+
+
 def render_cloud(cloud, rig: RigGeometry, plant=None, *, lidar=None, colour: str = "class",
                  error_max_m: float | None = None, view: View = View(),
                  **kwargs: Any) -> np.ndarray:
@@ -264,8 +276,8 @@ def render_cloud(cloud, rig: RigGeometry, plant=None, *, lidar=None, colour: str
       rig: rig geometry.
       plant: the placed plant (needed for ``colour="error"``).
       lidar: LidarSpec whose fan is drawn (None: no fan).
-      colour: "class" or "error" (plant points by distance to the mesh; the
-        others grey).
+      colour: "class" or "error" (plant points only, by distance to the mesh,
+        with a colour bar and its scale in the picture).
       error_max_m: the distance shown red (None: the 95th percentile).
       view: the camera.
       **kwargs: passed to :func:`render_scene`.
@@ -276,36 +288,95 @@ def render_cloud(cloud, rig: RigGeometry, plant=None, *, lidar=None, colour: str
     if colour not in ("class", "error"):
         raise ValueError(f"colour must be 'class' or 'error', got {colour!r}")
     if colour == "class":
-        rgba = _class_colours(cloud.hit_class)
-        pts = cloud.points_turntable
-    else:
-        if plant is None:
-            raise ValueError("colour='error' needs the plant mesh the cloud was scanned from")
-        pts = cloud.plant_only().points_turntable
-        rgba = error_picture_colours(pts, plant, error_max_m)
-    return render_scene(rig, plant, points_turntable=pts, point_rgba=rgba, lidar=lidar,
-                        view=view, **kwargs)
+        return render_scene(rig, plant, points_turntable=cloud.points_turntable,
+                            point_rgba=_class_colours(cloud.hit_class), lidar=lidar, view=view,
+                            **kwargs)
+    image, _ = _render_error(cloud, rig, plant, lidar=lidar, error_max_m=error_max_m, view=view,
+                             **kwargs)
+    return image
+
+
+def _render_error(cloud, rig, plant, *, error_max_m, view, max_points: int = 20_000, **kwargs):
+    """The error picture and the distance shown red, metres."""
+    if plant is None:
+        raise ValueError("colour='error' needs the plant mesh the cloud was scanned from")
+    pts = cloud.plant_only().points_turntable
+    # Only the points drawn are measured: the picture costs the same at any step.
+    pts = pts[_even_subsample(len(pts), max_points)]
+    d = _distances(pts, plant)
+    top = (float(np.percentile(d, 95)) if len(d) else 1e-3) if error_max_m is None else float(error_max_m)
+    top = max(top, 1e-6)
+    text = (f"plant points by distance to the mesh\nblue 0 mm -> red >= {top * 1e3:.3g} mm"
+            + (" (p95)" if error_max_m is None else ""))
+    image = render_scene(rig, plant, points_turntable=pts, point_rgba=error_colours(d, top),
+                         view=view, max_points=max_points, overlay=text, **kwargs)
+    return _with_colour_bar(image), top
+
+
+def _with_colour_bar(image: np.ndarray) -> np.ndarray:
+    """The image with the error scale's colour bar at its right edge (blue bottom, red top)."""
+    h, w = image.shape[:2]
+    bar_h, bar_w = max(int(0.5 * h), 2), max(w // 48, 4)
+    top, left = (h - bar_h) // 2, w - 2 * bar_w
+    rgb = error_colours(np.linspace(1.0, 0.0, bar_h), 1.0)[:, :3]
+    out = image.copy()
+    out[top:top + bar_h, left:left + bar_w] = (255 * rgb[:, None, :]).astype(np.uint8)
+    return out
+
+
+def _distances(points_turntable: np.ndarray, plant) -> np.ndarray:
+    from plantsim.evaluation.metrics import MeshProximity
+
+    if len(points_turntable) == 0:
+        return np.zeros(0)
+    return MeshProximity(plant.vertices_turntable, plant.faces).query(points_turntable).distance
 
 
 def error_picture_colours(points_turntable: np.ndarray, plant,
                           error_max_m: float | None = None) -> np.ndarray:
     """(n, 4) colours of plant points by their exact distance to the plant's mesh."""
-    from plantsim.evaluation.metrics import MeshProximity
-
     if len(points_turntable) == 0:
         return np.zeros((0, 4), np.float32)
-    d = MeshProximity(plant.vertices_turntable, plant.faces).query(points_turntable).distance
+    d = _distances(points_turntable, plant)
     top = float(np.percentile(d, 95)) if error_max_m is None else float(error_max_m)
     return error_colours(d, max(top, 1e-6))
 
 
+@dataclasses.dataclass(frozen=True)
+class ErrorPicture:
+    """A cloud-vs-mesh error picture.
+
+    Attributes:
+      png: the PNG file's bytes.
+      error_max_m: the distance drawn red (and beyond), metres; blue is 0.
+    """
+
+    png: bytes
+    error_max_m: float
+
+    def scale_text(self) -> str:
+        """The colour scale in words, for a summary line."""
+        return f"blue 0 mm -> red >= {self.error_max_m * 1e3:.3g} mm"
+
+
+def error_picture_of(cloud, plant, rig: RigGeometry, *, error_max_m: float | None = None,
+                     view: View = View(elevation_deg=-10.0)) -> ErrorPicture:
+    """The plant points coloured by distance to the true mesh, with the scale.
+
+    The mesh is drawn too, so a point off the surface shows against it; the
+    scale is written in the picture's top-left corner and drawn as a colour
+    bar at its right edge. At most 20,000 points (an even subsample) are drawn
+    and measured.
+
+    Raises:
+      RenderError: no offscreen OpenGL context (names what to install).
+    """
+    image, top = _render_error(cloud, rig, plant, error_max_m=error_max_m, view=view,
+                               point_radius_m=0.001)
+    return ErrorPicture(png=png_bytes(image), error_max_m=top)
+
+
 def error_picture(cloud, plant, rig: RigGeometry, *, error_max_m: float | None = None,
                   view: View = View(elevation_deg=-10.0)) -> bytes:
-    """PNG bytes of the plant points coloured by distance to the true mesh.
-
-    For ``--evaluate``: ``write_atomic(path, error_picture(result.cloud,
-    result.plant, config.rig))``. The mesh is drawn too, so a point off the
-    surface shows against it.
-    """
-    return png_bytes(render_cloud(cloud, rig, plant, colour="error", error_max_m=error_max_m,
-                                  view=view, point_radius_m=0.001))
+    """PNG bytes of :func:`error_picture_of`."""
+    return error_picture_of(cloud, plant, rig, error_max_m=error_max_m, view=view).png

@@ -19,13 +19,15 @@ it is moved to the turntable frame with the run's ``T_turntable_mesh``.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import json
 import logging
 import math
+import os
 import time
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -178,9 +180,32 @@ def truth_in_turntable(truth: Mapping[str, Any], T_turntable_mesh: Any) -> dict[
     return out
 
 
+# Progress of the trait extraction, in the units of the distance part (one a
+# cloud point): it reports only when done, and costs about five times the exact
+# distances a point (libigl, bundled maize, 70k-280k points), so the bar moves
+# about evenly in time.
+_TRAITS_WORK_PER_POINT = 5
+
+
+def evaluation_threads(threads: int | None) -> int:
+    """The threads an evaluation uses: ``threads`` capped at the cores (None: all cores).
+
+    Raises:
+        ValueError: ``threads`` not a positive integer or None.
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if threads is None:
+        return cores
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"threads must be a positive integer or None (all cores), got {threads!r}")
+    return min(threads, cores)
+
+
 def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
                    options: EvaluationOptions = EvaluationOptions(),
-                   truth_path: str | Path | None = None) -> Evaluation:
+                   truth_path: str | Path | None = None, threads: int | None = None,
+                   progress: Callable[[int, int], None] | None = None,
+                   proximity: metrics.MeshProximity | None = None) -> Evaluation:
     """Measures plant points against the placed mesh and, if known, the exact traits.
 
     Args:
@@ -190,15 +215,25 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
         options: how to measure.
         truth_path: exact-traits JSON; None looks beside the mesh file
             (:func:`truth_traits_path`).
+        threads: threads for the KD-tree queries (None: all cores; capped at
+            the cores). The answers do not depend on it.
+        progress: called as ``progress(done, total)`` in work units that grow
+            about evenly with time (distances, then coverage, then traits);
+            ``done == total`` at the end. Never called for an empty cloud.
+        proximity: a prebuilt :class:`plantsim.evaluation.metrics.MeshProximity`
+            of ``plant.vertices_turntable`` / ``plant.faces``, to measure many
+            clouds of one plant without rebuilding its tree.
 
     Returns:
         Evaluation.
 
     Raises:
-        ValueError: non-finite points, or a traits file that is not valid.
+        ValueError: non-finite points, a traits file that is not valid, or
+            ``threads`` not a positive integer.
         FileNotFoundError: an explicit ``truth_path`` that does not exist.
     """
     t0 = time.perf_counter()
+    workers = evaluation_threads(threads)
     pts = np.asarray(points_turntable, dtype=np.float64).reshape(-1, 3)
     if truth_path is None:
         found = truth_traits_path(plant.source) if options.traits else None
@@ -210,39 +245,65 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
         logger.warning("no point hit the plant: nothing to evaluate")
         return Evaluation(n_points=0, metrics=None, traits=None, estimate=None,
                           truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
-    measured = metrics.cloud_mesh_metrics(
-        pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
-        band_height=options.band_height, n_surface_samples=options.n_surface_samples,
-        rng=np.random.default_rng(options.seed))
+    with_traits = found is not None and options.traits
+    n_metric = len(pts) + options.n_surface_samples
+    total = n_metric + (_TRAITS_WORK_PER_POINT * len(pts) if with_traits else 0)
+    # With two threads or more, the traits are extracted beside the metrics: both
+    # spend much of their time in numpy and scipy code that releases the GIL.
+    pool = (concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="traits")
+            if with_traits and workers >= 2 else None)
+    try:
+        estimate_future = (None if pool is None else
+                           pool.submit(traits.extract_traits, pts, settings=options.trait_settings))
+        measured = metrics.cloud_mesh_metrics(
+            pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
+            band_height=options.band_height, n_surface_samples=options.n_surface_samples,
+            rng=np.random.default_rng(options.seed), proximity=proximity, workers=workers,
+            progress=None if progress is None else (lambda done, _n: progress(done, total)))
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     comparison = estimate = None
-    if found is not None and options.traits:
+    if with_traits:
         try:
             truth = json.loads(found.read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
             raise ValueError(f"truth_path: {found} is not valid JSON: {exc}") from exc
         try:
             reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
-            estimate = traits.extract_traits(pts, settings=options.trait_settings)
+            estimate = (traits.extract_traits(pts, settings=options.trait_settings)
+                        if estimate_future is None else estimate_future.result())
             comparison = traits.compare_traits(estimate, reference)
         except (ValueError, KeyError, TypeError) as exc:
             # A truth file in another schema costs the trait comparison, never the scan.
             logger.warning("truth %s not usable for traits, comparison skipped: %s", found, exc)
             comparison = estimate = None
+    if progress is not None:
+        progress(total, total)
     return Evaluation(n_points=int(len(pts)), metrics=measured, traits=comparison, estimate=estimate,
                       truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
 
 
 def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
-                  truth_path: str | Path | None = None) -> Evaluation:
+                  truth_path: str | Path | None = None, threads: int | None = None,
+                  progress: Callable[[int, int], None] | None = None,
+                  proximity: metrics.MeshProximity | None = None) -> Evaluation:
     """Measures a :class:`plantsim.scan.pipeline.ScanResult` (its plant-class points).
 
     Args:
         result: the scan.
         options: how to measure.
         truth_path: exact-traits JSON; None looks beside the mesh file.
+        threads: as :func:`evaluate_cloud`; None takes the scan's own
+            ``config.threads`` (``--threads``, the TOML's ``threads``).
+        progress: as :func:`evaluate_cloud`.
+        proximity: as :func:`evaluate_cloud`.
 
     Returns:
         Evaluation.
     """
+    if threads is None:
+        threads = getattr(getattr(result, "config", None), "threads", None)
     return evaluate_cloud(result.cloud.plant_only().points_turntable, result.plant,
-                          options=options, truth_path=truth_path)
+                          options=options, truth_path=truth_path, threads=threads,
+                          progress=progress, proximity=proximity)

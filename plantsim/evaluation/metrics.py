@@ -635,7 +635,13 @@ def sample_surface(
     if int(n) < 1:
         raise ValueError(f"n must be >= 1, got {n}")
     v, f = _as_mesh(vertices, faces)
-    gen = _rng(rng)
+    pts, tri_idx, _ = _sample_surface(v, f, int(n), _rng(rng))
+    return pts, tri_idx
+
+
+def _sample_surface(v: np.ndarray, f: np.ndarray, n: int, gen: np.random.Generator
+                    ) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`sample_surface` on a checked mesh; also returns the total area (m^2)."""
     area = triangle_areas(v, f)
     total = area.sum()
     if not total > 0:
@@ -649,7 +655,27 @@ def sample_surface(
         + (r1 * (1 - r2))[:, None] * t[:, 1]
         + (r1 * r2)[:, None] * t[:, 2]
     )
-    return pts, tri_idx.astype(np.int64)
+    return pts, tri_idx.astype(np.int64), float(total)
+
+
+# Chunks small enough for a progress bar to move, large enough to cost nothing:
+# about 50 updates per query, at least 10,000 points each.
+def _progress_chunk(n: int, progress) -> int:
+    return 50_000 if progress is None else max(10_000, -(-n // 50))
+
+
+def _nearest_distance(tree: cKDTree, queries: np.ndarray, workers: int, progress, done: int,
+                      total: int) -> np.ndarray:
+    """Distance of each query point to its nearest point of ``tree``, in chunks when
+    ``progress`` is given (reported as ``done + queries so far`` of ``total``)."""
+    if progress is None:
+        return tree.query(queries, k=1, workers=workers)[0]
+    out = np.empty(queries.shape[0])
+    step = _progress_chunk(queries.shape[0], progress)
+    for s in range(0, queries.shape[0], step):
+        out[s:s + step] = tree.query(queries[s:s + step], k=1, workers=workers)[0]
+        progress(done + min(s + step, queries.shape[0]), total)
+    return out
 
 
 # --------------------------------------------------------------------------
@@ -754,6 +780,7 @@ def cloud_mesh_metrics(
     rng: np.random.Generator | int | None = None,
     proximity: MeshProximity | None = None,
     progress: Callable[[int, int], None] | None = None,
+    workers: int = -1,
 ) -> CloudMeshMetrics:
     """Measure a cloud against its true mesh.
 
@@ -773,8 +800,11 @@ def cloud_mesh_metrics(
         n_surface_samples: surface samples for coverage and mesh->cloud (>= 1).
         rng: ``numpy.random.Generator`` or int seed for the surface samples (None: 0).
         proximity: a prebuilt ``MeshProximity`` of this same mesh, to reuse.
-        progress: ``progress(points_done, points_total)`` during the cloud->mesh
-            distances (the slow part); see :meth:`MeshProximity.query`.
+        progress: ``progress(done, total)`` in points: the cloud->mesh distances
+            count one a cloud point, the mesh->cloud side (coverage) one a
+            surface sample; ``total`` is their sum.
+        workers: threads for the KD-tree query and the grid kernel (-1: all
+            cores); libigl's query runs on the calling thread.
 
     Returns:
         CloudMeshMetrics.
@@ -790,6 +820,8 @@ def cloud_mesh_metrics(
         raise ValueError(f"band_height must be > 0 metres, got {band_height}")
     if int(n_surface_samples) < 1:
         raise ValueError(f"n_surface_samples must be >= 1, got {n_surface_samples}")
+    if workers != -1 and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers must be -1 (all cores) or an integer >= 1, got {workers!r}")
     if proximity is None:
         prox = MeshProximity(v, f)
     elif proximity.faces.shape == f.shape and np.array_equal(proximity.vertices, v) and np.array_equal(
@@ -802,14 +834,16 @@ def cloud_mesh_metrics(
             f"({proximity.vertices.shape[0]} vertices, {proximity.n_triangles} faces; got "
             f"{v.shape[0]} and {f.shape[0]}); build MeshProximity(vertices, faces) for this one"
         )
-    d = prox.query(pts, progress=progress).distance
+    n_total = pts.shape[0] + int(n_surface_samples)
+    query_progress = None if progress is None else (lambda done, _n: progress(done, n_total))
+    d = prox.query(pts, workers=workers, progress=query_progress,
+                   chunk_size=_progress_chunk(pts.shape[0], progress)).distance
 
-    samples, _ = sample_surface(v, f, int(n_surface_samples), rng=rng)
-    d_back, _ = cKDTree(pts).query(samples, k=1, workers=-1)
+    samples, _, area = _sample_surface(v, f, int(n_surface_samples), _rng(rng))
+    d_back = _nearest_distance(cKDTree(pts), samples, workers, progress, pts.shape[0], n_total)
     covered = d_back <= coverage_distance
     cov = float(covered.mean())
     ns = samples.shape[0]
-    area = float(triangle_areas(v, f).sum())
 
     z0 = float(v[:, 2].min())
     z1 = float(v[:, 2].max())

@@ -106,7 +106,8 @@ def estimate_scale(points: np.ndarray, *, max_samples: int = 20_000, seed: int =
     return CloudScale(spacing_m=spacing, noise_m=noise, voxel_m=max(2.0 * spacing, 1.5 * noise))
 
 
-def outlier_mask(points: np.ndarray, *, k: int = 8, n_sigma: float = 3.0) -> np.ndarray:
+def outlier_mask(points: np.ndarray, *, k: int = 8, n_sigma: float = 3.0,
+                 workers: int = -1) -> np.ndarray:
     """Statistical outlier removal (Rusu et al. 2008, "Towards 3D point cloud based
     object maps for household environments", RAS 56:927-941).
 
@@ -115,6 +116,7 @@ def outlier_mask(points: np.ndarray, *, k: int = 8, n_sigma: float = 3.0) -> np.
         k: neighbours.
         n_sigma: a point is an outlier when its mean neighbour distance exceeds the
             cloud's mean by ``n_sigma`` standard deviations.
+        workers: threads of the neighbour query (-1: all cores; same answer).
 
     Returns:
         (n,) bool, True for the points kept.
@@ -122,7 +124,7 @@ def outlier_mask(points: np.ndarray, *, k: int = 8, n_sigma: float = 3.0) -> np.
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) <= k:
         return np.ones(len(pts), dtype=bool)
-    d, _ = cKDTree(pts).query(pts, k=k + 1)
+    d, _ = cKDTree(pts).query(pts, k=k + 1, workers=workers)
     mean = d[:, 1:].mean(axis=1)
     return mean <= mean.mean() + n_sigma * mean.std()
 
@@ -134,7 +136,15 @@ def voxel_centroids(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.nda
         (centroids (m, 3) float64, inverse (n,) int64 with points[i] in voxel inverse[i]).
     """
     ijk = np.floor(points / cell).astype(np.int64)
-    _, inverse = np.unique(ijk, axis=0, return_inverse=True)
+    ijk -= ijk.min(axis=0)
+    dims = ijk.max(axis=0) + 1
+    if float(np.prod(dims, dtype=np.float64)) < 2.0**62:
+        # One int64 key a voxel, ordered as the rows (i, j, k) are: the same voxels
+        # and numbering as np.unique(ijk, axis=0), several times faster.
+        _, inverse = np.unique((ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2],
+                               return_inverse=True)
+    else:
+        _, inverse = np.unique(ijk, axis=0, return_inverse=True)
     inverse = inverse.reshape(-1)
     m = int(inverse.max()) + 1
     counts = np.bincount(inverse, minlength=m).astype(np.float64)
@@ -170,10 +180,23 @@ def _xy_clusters(xy: np.ndarray, link: float, min_points: int) -> list[np.ndarra
         return []
     pairs = cKDTree(xy).query_pairs(link, output_type="ndarray")
     n = len(xy)
-    g = sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, lab = csgraph.connected_components(g, directed=False)
+    lab = _components(n, pairs)
     groups = [np.flatnonzero(lab == i) for i in range(lab.max() + 1)]
     return [g for g in groups if len(g) >= min_points]
+
+
+def _components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Connected-component label of each of ``n`` nodes joined by ``pairs`` (p, 2).
+
+    The CSR matrix is built directly (edges grouped by row): a COO matrix would
+    be summed and sorted per row first, the slow part on dense radius graphs.
+    Labels are numbered by each component's lowest node, whatever the edge order.
+    """
+    order = np.argsort(pairs[:, 0])
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(pairs[:, 0], minlength=n), out=indptr[1:])
+    g = sparse.csr_matrix((np.ones(len(pairs)), pairs[order, 1], indptr), shape=(n, n))
+    return csgraph.connected_components(g, directed=False)[1]
 
 
 def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diameter_m: float,

@@ -596,7 +596,7 @@ def projected_area_xy(points: Any, *, cell: float = 0.005) -> float:
 # whole plants
 # --------------------------------------------------------------------------
 def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | None = None,
-                  min_points: int = 2) -> float:
+                  min_points: int = 2, kept: np.ndarray | None = None) -> float:
     """Height of the plant that one stray point cannot set.
 
     Method: statistical outlier removal (Rusu et al. 2008), then the highest
@@ -612,6 +612,8 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
         base_z: z of the plant base, metres.
         cell: voxel side, metres (None: from the cloud).
         min_points: points a voxel needs to count.
+        kept: (n,) bool, the outlier removal's mask of these same points when
+            already computed (``Segmentation.kept``); None computes it.
 
     Returns:
         Height in metres.
@@ -619,7 +621,7 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
     from plantsim.evaluation import segmentation
 
     pts = _as_cloud(points_turntable)
-    pts = pts[segmentation.outlier_mask(pts)]
+    pts = pts[segmentation.outlier_mask(pts) if kept is None else kept]
     if cell is None:
         cell = segmentation.estimate_scale(pts).voxel_m
     cent, inv = segmentation.voxel_centroids(pts, cell)
@@ -711,7 +713,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     seg = segmentation.segment_organs(
         above, settings=segmentation.SegmentationSettings(
             base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter))
-    height = robust_height(above, base_z=s.base_z, cell=seg.scale.voxel_m)
+    height = robust_height(above, base_z=s.base_z, cell=seg.scale.voxel_m, kept=seg.kept)
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points)
                   for i, st in enumerate(seg.stems))

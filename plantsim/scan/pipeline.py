@@ -398,15 +398,17 @@ def scan_identity(config: RunConfig, plant: PlantMesh, turntable, source) -> dic
     return identity
 
 
-def with_evaluation(result: ScanResult, *, options: "EvaluationOptions | None" = None) -> ScanResult:
+def with_evaluation(result: ScanResult, *, options: "EvaluationOptions | None" = None,
+                    progress=None) -> ScanResult:
     """The result with its own error: plant points against the placed mesh and,
     when an exact-traits file sits beside the mesh, traits against it.
 
-    The evaluation's wall time is added to ``timings_s`` as ``evaluate``.
+    The evaluation's wall time is added to ``timings_s`` as ``evaluate``; it uses
+    the scan's ``config.threads``; ``progress(done, total)`` as ``evaluate_scan``'s.
     """
     from plantsim.evaluation.evaluate import EvaluationOptions, evaluate_scan
 
-    evaluation = evaluate_scan(result, options=options or EvaluationOptions())
+    evaluation = evaluate_scan(result, options=options or EvaluationOptions(), progress=progress)
     timings = {**result.timings_s, "evaluate": evaluation.time_s}
     return dataclasses.replace(result, evaluation=evaluation, timings_s=timings)
 
