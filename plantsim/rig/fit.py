@@ -29,6 +29,26 @@ def _extent(plant) -> tuple[float, float, float]:
     return float(np.hypot(v[:, 0], v[:, 1]).max()), float(v[:, 2].min()), float(v[:, 2].max())
 
 
+# The plant's top: the points within this fraction of its height below the highest one.
+TOP_BAND = 0.05
+
+
+def _top_elevation_rad(plant, rig: RigGeometry) -> float:
+    """The steepest beam elevation at which the LiDAR sees the plant's top.
+
+    Each point of the top band (the highest ``TOP_BAND`` of the plant's height) is
+    seen steepest when it passes nearest the LiDAR, at ``lidar_distance_m - r``
+    for its own radius ``r``; the largest of those elevations is returned. (Taking
+    the plant's largest radius with its greatest height would pair a low leaf tip's
+    reach with the top and warn about a top that is seen well.)
+    """
+    v = plant.vertices_turntable
+    z = v[:, 2]
+    top = z >= z.max() - TOP_BAND * max(float(np.ptp(z)), 1e-9)
+    gap = np.maximum(rig.lidar_distance_m - np.hypot(v[top, 0], v[top, 1]), 1e-6)
+    return float(np.arctan2(z[top] - rig.lidar_height_m, gap).max())
+
+
 def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     """What stops this rig from scanning this plant, each with its numbers.
 
@@ -72,10 +92,10 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     if not lo <= height <= hi:
         out.append(f"the plant is {height:.4g} m tall (units {plant.units!r}), outside the "
                    f"plausible {lo}-{hi} m: check the mesh units (mm vs m?)")
-    if rig.lidar_height_m < z_hi and math.degrees(math.atan2(z_hi - rig.lidar_height_m, gap)) > MAX_ELEVATION_DEG:
-        out.append(f"the top is seen {math.degrees(math.atan2(z_hi - rig.lidar_height_m, gap)):.0f} deg "
-                   f"above the horizontal (> {MAX_ELEVATION_DEG:.0f}): grazing beams, sparse top; "
-                   "raise or move back the LiDAR")
+    top_deg = math.degrees(_top_elevation_rad(plant, rig))
+    if top_deg > MAX_ELEVATION_DEG:
+        out.append(f"the top is seen {top_deg:.0f} deg above the horizontal (> {MAX_ELEVATION_DEG:.0f}): "
+                   "grazing beams, sparse top; raise or move back the LiDAR")
     return out
 
 
