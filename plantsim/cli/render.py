@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-_CLOUD_SUFFIXES = (".las", ".laz", ".pcd", ".txt", ".xyz", ".pts")
+_CLOUD_SUFFIXES = (".las", ".laz", ".pcd", ".txt", ".xyz", ".pts", ".e57")
 
 
 def _is_cloud(path: Path) -> bool:
