@@ -3,17 +3,23 @@
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 
 import mujoco
 import numpy as np
 import pytest
+import tomllib
 
 from plantsim.cli.app import main
 from plantsim.cloud.calibration import PARAMETERS, calibrate
 from plantsim.cloud.export import read_cloud
 from plantsim.plant.mesh import load_plant
-from plantsim.plant.target import CALIBRATION_TARGET, CalibrationTarget, ray_distance, ray_hit, target_stl_bytes
+from plantsim.plant.target import (
+    CALIBRATION_TARGET,
+    CalibrationTarget,
+    ray_distance,
+    ray_hit,
+    target_stl_bytes,
+)
 from plantsim.resources import bundled_plant_path
 from plantsim.rig.geometry import RigGeometry
 from plantsim.rig.scene import build_scene

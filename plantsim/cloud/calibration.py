@@ -48,7 +48,12 @@ import math
 import numpy as np
 
 from plantsim.cloud.reconstruct import base_to_turntable, points_base_from_ranges
-from plantsim.plant.target import CALIBRATION_TARGET, CalibrationTarget, ray_hit, surface_normals
+from plantsim.plant.target import (
+    CALIBRATION_TARGET,
+    CalibrationTarget,
+    ray_hit,
+    surface_normals,
+)
 from plantsim.rig.geometry import RigGeometry
 from plantsim.scan.raw import RawScan
 from plantsim.sensor.spec import BeamStatus
@@ -375,7 +380,7 @@ def calibrate(raw: RawScan, *, nominal: RigGeometry = RigGeometry(), target: Cal
                        observable={k: bool(std_by_name[k] < OBSERVABLE_STD[k]) for k in _ALL},
                        correlation=correlation,
                        rms_m=float(np.sqrt(np.mean(res[kept] ** 2))) if kept.any() else float("nan"),
-                       n_points=int(len(res)), n_kept=int(kept.sum()), start=nominal)
+                       n_points=len(res), n_kept=int(kept.sum()), start=nominal)
 
 
 def rig_toml(calibration: Calibration, *, source: str = "") -> str:
@@ -389,7 +394,8 @@ def rig_toml(calibration: Calibration, *, source: str = "") -> str:
              f"# {calibration.n_kept:,} of {calibration.n_points:,} returns on the target; RMS range residual "
              f"{calibration.rms_m * 1e3:.3f} mm. Uncertainties: one standard deviation of the fit.",
              "# Not rig geometry, fitted alongside: " + ", ".join(
-                 f"{k} {shown(k, v)} +- {shown(k, calibration.std[k])}" for k, v in calibration.nuisance.items()),
+                 f"{k} {shown(k, v)} " + (f"+- {shown(k, calibration.std[k])}" if calibration.std[k] > 0 else "(given)")
+                 for k, v in calibration.nuisance.items()),
              "[rig]"]
     for name in PARAMETERS:
         flag = "" if calibration.observable[name] else "  (NOT pinned by this scan)"
