@@ -353,8 +353,9 @@ def calibrate(raw: RawScan, *, nominal: RigGeometry = RigGeometry(), target: Cal
     res = fit.fun
     sigma = max(_robust_sigma(res), 1e-9)
     kept = np.abs(res - np.median(res)) < 3 * sigma
-    # The plain Jacobian (least_squares returns one weighted by the loss).
-    J = jac(fit.x)[kept]
+    # least_squares's Jacobian is weighted by the loss (beams far out count less), as the fit
+    # weighted them; it gives larger, more honest sigmas than the plain one (docs/calibration.md).
+    J = fit.jac[kept]
     n_kept = int(kept.sum())
     dof = max(n_kept - int(free.sum()), 1)
     # Fixed parameters: no uncertainty from this fit (zero), no correlation (NaN).
