@@ -3,27 +3,37 @@
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 
 import mujoco
 import numpy as np
 import pytest
+import tomllib
 
 from plantsim.cli.app import main
 from plantsim.cloud.calibration import PARAMETERS, calibrate
 from plantsim.cloud.export import read_cloud
 from plantsim.plant.mesh import load_plant
-from plantsim.plant.target import CALIBRATION_TARGET, ray_distance, target_stl_bytes
+from plantsim.plant.target import (
+    CALIBRATION_TARGET,
+    CalibrationTarget,
+    ray_distance,
+    ray_hit,
+    target_stl_bytes,
+)
 from plantsim.resources import bundled_plant_path
 from plantsim.rig.geometry import RigGeometry
 from plantsim.rig.scene import build_scene
 from plantsim.scan.config import PlantOptions, RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
+from plantsim.sensor.spec import PRESETS
 
-SAGITTA_M = CALIBRATION_TARGET.drum_radius_m * (1 - np.cos(np.pi / CALIBRATION_TARGET.sections))
+SAGITTA_M = CALIBRATION_TARGET.post_radius_m * (1 - np.cos(np.pi / CALIBRATION_TARGET.sections))
 TRUTH = RigGeometry(lidar_distance_m=0.357, lidar_height_m=0.142, tilt_deg=0.7, yaw_deg=-0.8, roll_deg=0.5,
                     encoder_offset_deg=3.0)
+# The issue's tolerances (distance and height 1 mm, angles 0.2 degrees).
+TOLERANCE = {"lidar_distance_m": 1e-3, "lidar_height_m": 1e-3, "tilt_deg": 0.2, "yaw_deg": 0.2, "roll_deg": 0.2,
+             "encoder_offset_deg": 0.2}
 
 
 def test_the_bundled_target_is_its_description():
@@ -63,24 +73,92 @@ def test_ray_distance_agrees_with_mujoco_on_the_target_mesh():
         assert (dist >= 0) == np.isfinite(a)
         if dist >= 0:
             hits += 1
-            assert abs(dist - a) < 3 * SAGITTA_M
+            assert abs(dist - a) < 10 * SAGITTA_M  # a facet's sagitta, seen obliquely
     assert hits > 200
 
 
-def scan_of_target(rig, sensor="ideal", step_deg=2.0):
-    config = RunConfig(plant=PlantOptions(bundled="calibration-target"), rig=rig, sensor=sensor,
-                       scan=StepScan(step_deg=step_deg))
+def test_ray_hit_names_the_face_it_hits():
+    # Rays along -X at the block's mid height hit its +X face; from above, the top; past it, the disk.
+    origins = np.array([[0.3, 0.0, 0.05], [0.0, 0.03, 0.25], [0.3, 0.0, -0.001], [-0.04, 0.0, 0.5]])
+    dirs = np.array([[-1.0, 0, 0], [0, 0, -1.0], [-1.0, 0, 0], [0, 0, -1.0]])
+    t, surface = ray_hit(CALIBRATION_TARGET, origins, dirs, disk_radius_m=0.1)
+    np.testing.assert_allclose(t, [0.3 - 0.075, 0.25 - 0.1, 0.3 - 0.1, 0.5 - 0.1], atol=1e-12)
+    block_plus_x, block_top, disk_side = 0 * 8 + 1, 0 * 8 + 5, 2 * 8 + 0
+    assert surface[[0, 1, 2]].tolist() == [block_plus_x, block_top, disk_side]
+    # Straight down onto the post at (0.04, 0, z): its top cap (part 1, face 2).
+    t, surface = ray_hit(CALIBRATION_TARGET, np.array([[0.04, 0.0, 0.5]]), np.array([[0, 0, -1.0]]))
+    assert t[0] == pytest.approx(0.2) and surface[0] == 1 * 8 + 2
+
+
+def test_a_target_that_cannot_be_built_is_refused():
+    with pytest.raises(ValueError, match="must stand on the block's top"):
+        CalibrationTarget(post_offset_m=0.06)
+    with pytest.raises(ValueError, match="block_width_m must be a finite number of metres > 0"):
+        CalibrationTarget(block_width_m=-0.08)
+
+
+def scan_of_target(rig, sensor="ideal", step_deg=2.0, seed=0, lidar=None, plant=None):
+    config = RunConfig(plant=plant or PlantOptions(bundled="calibration-target"), rig=rig, sensor=sensor,
+                       scan=StepScan(step_deg=step_deg), seed=seed, **({"lidar": lidar} if lidar else {}))
     return run_scan(config)
 
 
-def test_calibration_recovers_a_perturbed_rig_from_an_ideal_scan():
-    raw = scan_of_target(TRUTH).raw
-    fit = calibrate(raw, nominal=RigGeometry())
-    tolerance = {"lidar_distance_m": 1e-5, "lidar_height_m": 1e-5, "tilt_deg": 0.005, "yaw_deg": 0.005,
-                 "roll_deg": 0.005, "encoder_offset_deg": 0.005}
+# The encoder's zero far from the start: the search over the turn must find it.
+IDEAL_TRUTH = dataclasses.replace(TRUTH, encoder_offset_deg=-121.3)
+
+
+@pytest.fixture(scope="module")
+def ideal_raw():
+    return scan_of_target(IDEAL_TRUTH, step_deg=3.0).raw
+
+
+@pytest.fixture(scope="module")
+def ideal_fit(ideal_raw):
+    return calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000)
+
+
+def test_calibration_recovers_a_perturbed_rig_from_an_ideal_scan(ideal_fit):
+    tolerance = {"lidar_distance_m": 2e-5, "lidar_height_m": 2e-5, "tilt_deg": 0.002, "yaw_deg": 0.002,
+                 "roll_deg": 0.002, "encoder_offset_deg": 0.002}
     for name in PARAMETERS:
-        assert getattr(fit.rig, name) == pytest.approx(getattr(TRUTH, name), abs=tolerance[name]), name
-    assert fit.n_kept == fit.n_points and fit.rms_m < 1e-5
+        assert getattr(ideal_fit.rig, name) == pytest.approx(getattr(IDEAL_TRUTH, name), abs=tolerance[name]), name
+    assert ideal_fit.rms_m < 2e-5
+    assert all(ideal_fit.observable[name] for name in PARAMETERS)
+    assert abs(ideal_fit.nuisance["target_x_m"]) < 1e-5 and abs(ideal_fit.nuisance["target_y_m"]) < 1e-5
+
+
+def test_calibration_recovers_a_perturbed_rig_from_a_realistic_scan_within_the_issues_tolerances():
+    # A biased sensor (told its bias, as plantsim sensor fit measures it) and a target 1.5 mm off the axis.
+    lidar = dataclasses.replace(PRESETS["urg-04lx-ug01"], range_bias_m=0.004)
+    moved = ((1.0, 0.0, 0.0, 0.0015), (0.0, 1.0, 0.0, -0.001), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    raw = scan_of_target(TRUTH, sensor="realistic", step_deg=0.5, seed=3, lidar=lidar,
+                         plant=PlantOptions(bundled="calibration-target", T_turntable_mesh=moved)).raw
+    fit = calibrate(raw, nominal=RigGeometry(), range_offset_m=0.004)
+    for name in PARAMETERS:
+        error = getattr(fit.rig, name) - getattr(TRUTH, name)
+        assert abs(error) < TOLERANCE[name], (name, error)
+        # The stated uncertainty is of the size of the error, not a thousandth of it.
+        assert abs(error) < 4 * fit.std[name] + 0.1 * TOLERANCE[name], (name, error, fit.std[name])
+    assert fit.nuisance["target_x_m"] == pytest.approx(0.0015, abs=5e-4)
+    assert fit.nuisance["target_y_m"] == pytest.approx(-0.001, abs=5e-4)
+    assert 0.005 < fit.rms_m < 0.02  # the sensor's noise, not a misfit
+
+
+def test_the_range_offset_can_be_fitted_but_then_pins_the_distance_far_less(ideal_raw, ideal_fit):
+    fit = calibrate(ideal_raw, nominal=RigGeometry(), range_offset_m=None, max_points=6000)
+    assert fit.nuisance["range_offset_m"] == pytest.approx(0.0, abs=1e-5)
+    assert fit.rig.lidar_distance_m == pytest.approx(IDEAL_TRUTH.lidar_distance_m, abs=1e-4)
+    assert fit.std["lidar_distance_m"] > 5 * ideal_fit.std["lidar_distance_m"]
+    distance, offset = PARAMETERS.index("lidar_distance_m"), len(PARAMETERS)
+    assert abs(fit.correlation[distance, offset]) > 0.9 and np.isnan(ideal_fit.correlation[distance, offset])
+
+
+def test_an_uncertain_range_offset_widens_the_distances_uncertainty(ideal_raw, ideal_fit):
+    unsure = calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000, range_offset_std_m=0.0005)
+    assert unsure.std["lidar_distance_m"] == pytest.approx(0.0005, rel=0.5)
+    assert unsure.rig.lidar_distance_m == pytest.approx(ideal_fit.rig.lidar_distance_m, abs=1e-9)
+    with pytest.raises(ValueError, match="range_offset_m must be a number of metres"):
+        calibrate(ideal_raw, range_offset_m=float("nan"))
 
 
 def test_the_encoder_offset_changes_no_simulated_cloud():
@@ -101,6 +179,8 @@ def test_calibrate_cli_writes_a_rig_that_reconstruct_uses(tmp_path, capsys):
     assert main(["scan", "--config", str(truth), "--sensor", "ideal", "--step-deg", "3", "--raw", str(bag),
                  "-o", str(tmp_path / "t.las")]) == 0
     assert main(["calibrate", str(bag), "-o", str(fitted), "--start", str(nominal)]) == 0
+    printed = capsys.readouterr().out
+    assert "lidar_distance_m" in printed and "+-" in printed and "observable" in printed
     rig = tomllib.loads(fitted.read_text())["rig"]
     assert rig["lidar_distance_m"] == pytest.approx(0.357, abs=1e-4)
     assert rig["encoder_offset_deg"] == pytest.approx(3.0, abs=0.01)
@@ -119,4 +199,10 @@ def test_a_scan_of_something_else_is_refused():
                             np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]]), placement="none")
     raw = run_scan(RunConfig(sensor="ideal", scan=StepScan(step_deg=10)), plant=far).raw  # an empty disk
     with pytest.raises(ValueError, match="returns lie near the calibration target under the starting rig"):
+        calibrate(raw)
+
+
+def test_too_few_lines_are_refused():
+    raw = scan_of_target(TRUTH, step_deg=20.0).raw
+    with pytest.raises(ValueError, match="scan a whole turn in steps of 15 degrees or less"):
         calibrate(raw)

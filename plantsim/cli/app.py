@@ -240,12 +240,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         start = config_from_dict({"rig": info["config"]["rig"]}).rig
     else:
         start = RigGeometry()
-    result = calibrate(raw, nominal=start)
+    result = calibrate(raw, nominal=start, range_offset_m=None if args.range_offset_mm is None
+                       else float(args.range_offset_mm) * 1e-3)
     write_atomic(out, rig_toml(result, source=str(args.raw)).encode("utf-8"))
     for name in PARAMETERS:
         unit, factor = ("mm", 1e3) if name.endswith("_m") else ("deg", 1.0)
         print(f"{name:20s} {getattr(result.rig, name) * factor:10.4f} {unit:3s} +- "
-              f"{result.std[name] * factor:.3g}  (start {getattr(start, name) * factor:.4g})")
+              f"{result.std[name] * factor:.3g}  {'observable' if result.observable[name] else 'NOT observable'}"
+              f"  (start {getattr(start, name) * factor:.4g})")
     print(f"{result.n_kept:,} of {result.n_points:,} returns on the target, RMS {result.rms_m * 1e3:.2f} mm; "
           f"wrote {out}")
     return 0
@@ -312,6 +314,9 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--start", metavar="TOML",
                            help="a configuration whose [rig] is the starting guess (default: the bag's own "
                                 "configuration, else plantsim's default rig)")
+    calibrate.add_argument("--range-offset-mm", type=float, default=0.0, nargs="?", const=None,
+                           help="the LiDAR's known range offset (plantsim sensor fit's range_bias_m, in mm; "
+                                "default 0); give the flag without a value to fit it too (distance far less sure)")
     calibrate.set_defaults(func=cmd_calibrate)
 
     from plantsim.cli.rig import add_rig_commands

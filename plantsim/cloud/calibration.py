@@ -2,11 +2,10 @@
 
 A raw record of the calibration target (:mod:`plantsim.plant.target`) on the
 rig holds ranges, beam angles and encoder readings. With the right rig geometry
-every return lies on the target's known surface (or the disk's top). The fit
-finds the geometry that puts them there: nonlinear least squares
-(``scipy.optimize.least_squares``, a soft-L1 loss so that the bench, the post and
-stray returns do not pull) on the exact signed distance of each reconstructed
-point to the target, over
+every measured range equals the range along the same beam to the target's known
+surface (or the disk's top), plus the sensor's noise. The fit is one joint
+nonlinear least-squares problem (``scipy.optimize.least_squares``, Cauchy loss)
+on those range residuals over the rig's parameters
 
 - ``lidar_distance_m``: the optical centre's distance from the axis,
 - ``lidar_height_m``: its height above the disk top,
@@ -15,34 +14,68 @@ point to the target, over
   be told apart, so one number stands for both;
 - ``yaw_deg``: the scan plane turned about the vertical (off the axis),
 - ``roll_deg``: the scan plane leaned about the boresight,
-- ``encoder_offset_deg``: what the encoder reads with the table at angle 0.
+- ``encoder_offset_deg``: what the encoder reads with the table at angle 0
+  (continuous in the fit; a search over the whole turn only finds its basin),
+
+and three nuisance parameters a real rig has but a scan must not depend on
+(:data:`NUISANCE`): the LiDAR's range offset (a per-unit, per-material bias,
+which would otherwise be read as a distance), and where the target stands on the
+disk (its centre's x and y in the turntable frame).
+
+Noise is along the beam, so the residual is a range, not a point-to-surface
+distance. Only beams whose predicted return lies inside one smooth surface are
+used: beams near a silhouette, a corner or the disk's rim (where the real
+footprint mixes surfaces, and where the sensor drops EDGE returns) and beams at
+grazing incidence are left out, chosen by the model's prediction and never by
+the measured point, so the choice does not bias the ranges it keeps. The
+choice is made again as the fit settles.
 
 The uncertainties are one standard deviation from the fit's Jacobian
-(covariance = s^2 (J^T J)^-1 over the points the loss keeps, s^2 their residual
+(covariance = s^2 (J^T J)^-1 over the beams the loss keeps, s^2 their residual
 variance); they say how well the data pin each parameter, not how right the
-target's sizes are. Which parameters the target makes observable and how well
-(measured over perturbed rigs with the realistic sensor) is in
-``docs/calibration.md`` (``scripts/calibration_study.py``).
+target's sizes are. ``docs/calibration.md`` has what the target makes
+observable and a study over perturbed rigs with the realistic sensor
+(``scripts/calibration_study.py``), including how well these uncertainties cover
+the actual errors.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 
 import numpy as np
 
 from plantsim.cloud.reconstruct import base_to_turntable, points_base_from_ranges
-from plantsim.plant.target import CALIBRATION_TARGET, CalibrationTarget, ray_distance
+from plantsim.plant.target import (
+    CALIBRATION_TARGET,
+    CalibrationTarget,
+    ray_hit,
+    surface_normals,
+)
 from plantsim.rig.geometry import RigGeometry
 from plantsim.scan.raw import RawScan
 from plantsim.sensor.spec import BeamStatus
 
+log = logging.getLogger(__name__)
+
 PARAMETERS = ("lidar_distance_m", "lidar_height_m", "tilt_deg", "yaw_deg", "roll_deg", "encoder_offset_deg")
-# Finite-difference steps and the scale of each parameter (metres and degrees).
-_SCALE = np.array([1e-3, 1e-3, 0.1, 0.1, 0.1, 0.1])
-# How far from the starting geometry the fit may go: 5 cm, 10 degrees, half a turn of offset.
-_BOUNDS = np.array([0.05, 0.05, 10.0, 10.0, 10.0, 200.0])
+NUISANCE = ("range_offset_m", "target_x_m", "target_y_m")
+_ALL = PARAMETERS + NUISANCE
+# The scale of each parameter (metres and degrees): the fit's variables are the
+# parameters in these units, so that a step of 1 means the same to each.
+_SCALE = np.array([1e-3, 1e-3, 0.1, 0.1, 0.1, 0.1, 1e-3, 1e-3, 1e-3])
+# How far from the starting geometry the fit may go: 5 cm, 10 degrees, 3 cm of range offset and placement.
+# The encoder offset is free (its basin is found by a search over the whole turn).
+_BOUNDS = np.array([0.05, 0.05, 10.0, 10.0, 10.0, np.inf, 0.03, 0.03, 0.03])
+# A parameter is reported observable when the data pin it to within this (1 sigma).
+OBSERVABLE_STD = {"lidar_distance_m": 0.002, "lidar_height_m": 0.002, "tilt_deg": 0.3, "yaw_deg": 0.3,
+                  "roll_deg": 0.3, "encoder_offset_deg": 0.3, "range_offset_m": 0.002, "target_x_m": 0.002,
+                  "target_y_m": 0.002}
+# Beams whose predicted hit meets the surface at more than this incidence are left out:
+# there the footprint smears over centimetres of surface and its range is biased.
+_MAX_TAN_INCIDENCE = 3.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,21 +84,28 @@ class Calibration:
 
     Attributes:
       rig: the nominal geometry with the fitted parameters.
-      std: one standard deviation of each fitted parameter (same units).
-      rms_m: RMS distance to the target of the points the fit kept, metres.
-      n_points: points used; n_kept: of them, within 3 robust scales of the surface.
+      std: one standard deviation of each fitted parameter and nuisance (same units).
+      nuisance: the fitted range offset (metres, measured minus true) and target placement (metres).
+      observable: per parameter, whether the data pin it (std below :data:`OBSERVABLE_STD`).
+      correlation: (9, 9) correlation of the parameters, :data:`PARAMETERS` + :data:`NUISANCE` order.
+      rms_m: RMS range residual of the beams the fit kept, metres.
+      n_points: beams used; n_kept: of them, within 3 robust standard deviations.
       start: the geometry the fit started from.
     """
 
     rig: RigGeometry
     std: dict
+    nuisance: dict
+    observable: dict
+    correlation: np.ndarray
     rms_m: float
     n_points: int
     n_kept: int
     start: RigGeometry
 
     def to_dict(self) -> dict:
-        return {"fitted": {k: getattr(self.rig, k) for k in PARAMETERS}, "std": self.std, "rms_m": self.rms_m,
+        return {"fitted": {k: getattr(self.rig, k) for k in PARAMETERS}, "nuisance": self.nuisance,
+                "std": self.std, "observable": self.observable, "rms_m": self.rms_m,
                 "n_points": self.n_points, "n_kept": self.n_kept,
                 "start": {k: getattr(self.start, k) for k in PARAMETERS}}
 
@@ -74,134 +114,297 @@ def _rig_with(nominal: RigGeometry, x: np.ndarray) -> RigGeometry:
     return dataclasses.replace(nominal, **{k: float(v) for k, v in zip(PARAMETERS, x)})
 
 
-def _points(raw: RawScan, rig: RigGeometry, lines: np.ndarray, beams: np.ndarray, readings_rad: np.ndarray
-            ) -> np.ndarray:
-    """Turntable-frame points of the chosen returns under a rig geometry."""
-    base = points_base_from_ranges(raw.range_m[lines, beams], raw.beam_angle_rad[beams], rig.T_base_lidar())
-    return base_to_turntable(base, readings_rad - math.radians(rig.encoder_offset_deg))
+@dataclasses.dataclass(frozen=True)
+class _Beams:
+    """The returns the fit may use: (n,) arrays."""
+
+    range_m: np.ndarray
+    beam_angle_rad: np.ndarray
+    reading_rad: np.ndarray  # the encoder's reading (the believed angle plus the recorded offset)
+
+
+def _rays(beams: _Beams, nominal: RigGeometry, x: np.ndarray, *, d_beam_rad: float = 0.0, d_table_rad: float = 0.0
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Beam origins and directions in the target's frame (the turntable frame, shifted to the target's centre)."""
+    rig = _rig_with(nominal, x)
+    T = rig.T_base_lidar()
+    a = beams.beam_angle_rad + d_beam_rad
+    dirs_lidar = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+    theta = beams.reading_rad - math.radians(rig.encoder_offset_deg) + d_table_rad
+    c, s = np.cos(-theta), np.sin(-theta)
+    o = T[:3, 3]
+    shift = x[len(PARAMETERS) + 1:]
+    origins = np.stack([c * o[0] - s * o[1] - shift[0], s * o[0] + c * o[1] - shift[1], np.full_like(c, o[2])], axis=1)
+    d = dirs_lidar @ T[:3, :3].T
+    dirs = np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
+    return origins, dirs
+
+
+def _predict(beams: _Beams, nominal: RigGeometry, target: CalibrationTarget, x: np.ndarray, **shift
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    origins, dirs = _rays(beams, nominal, x, **shift)
+    t, surface = ray_hit(target, origins, dirs, disk_radius_m=nominal.disk_radius_m,
+                         disk_thickness_m=nominal.disk_thickness_m)
+    return t, surface, origins, dirs
+
+
+def _residuals(beams: _Beams, nominal: RigGeometry, target: CalibrationTarget, x: np.ndarray) -> np.ndarray:
+    """Measured minus predicted range (with the range offset), metres. A beam that would miss
+    under this geometry is measured by its point's distance to the surface instead (continuous)."""
+    t, _, origins, dirs = _predict(beams, nominal, target, x)
+    measured = beams.range_m - x[len(PARAMETERS)]
+    out = measured - t
+    miss = ~np.isfinite(t)
+    if miss.any():
+        out[miss] = target.distance(origins[miss] + measured[miss, None] * dirs[miss],
+                                    disk_radius_m=nominal.disk_radius_m, disk_thickness_m=nominal.disk_thickness_m)
+    return out
+
+
+def _jacobian(beams: _Beams, nominal: RigGeometry, target: CalibrationTarget, x: np.ndarray, free: np.ndarray
+              ) -> np.ndarray:
+    """(n, n_free) derivative of :func:`_residuals` by each free parameter in units of ``_SCALE``.
+
+    The rays' own derivatives are taken by finite differences (cheap: no casting); the range
+    along a ray to a surface moves as ``dt = -n . (do + t dd) / (n . d)`` (n the surface
+    normal at the hit), so each step costs no ray casting. A beam that misses gets a zero row.
+    """
+    t, surface, origins, dirs = _predict(beams, nominal, target, x)
+    hit = np.isfinite(t)
+    normals = surface_normals(target, origins + np.where(hit, t, 0.0)[:, None] * dirs, surface,
+                              disk_radius_m=nominal.disk_radius_m, disk_thickness_m=nominal.disk_thickness_m)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n_dot_d = np.einsum("ij,ij->i", normals, dirs)
+    columns = []
+    for k in np.nonzero(free)[0]:
+        if k == len(PARAMETERS):  # the range offset: r = measured - offset - t
+            columns.append(np.full(len(t), -_SCALE[k]))
+            continue
+        h = 1e-3
+        step = np.zeros(len(x))
+        step[k] = h * _SCALE[k]
+        o_plus, d_plus = _rays(beams, nominal, x + step)
+        o_minus, d_minus = _rays(beams, nominal, x - step)
+        d_o, d_d = (o_plus - o_minus) / (2 * h), (d_plus - d_minus) / (2 * h)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dt = -np.einsum("ij,ij->i", normals, d_o + np.where(hit, t, 0.0)[:, None] * d_d) / n_dot_d
+        columns.append(np.where(hit & np.isfinite(dt), -dt, 0.0))
+    return np.column_stack(columns)
+
+
+def _interior(beams: _Beams, nominal: RigGeometry, target: CalibrationTarget, x: np.ndarray, margin_rad: float
+              ) -> np.ndarray:
+    """(n,) bool: the beam's predicted hit, and hits moved by ``margin_rad`` in beam and table angle,
+    lie on one smooth surface, met at less than the grazing limit."""
+    t, surface, _, _ = _predict(beams, nominal, target, x)
+    keep = np.isfinite(t)
+    ends = []
+    for shift in ({"d_beam_rad": margin_rad}, {"d_beam_rad": -margin_rad}, {"d_table_rad": margin_rad},
+                  {"d_table_rad": -margin_rad}):
+        t_shift, surface_shift, _, _ = _predict(beams, nominal, target, x, **shift)
+        keep &= np.isfinite(t_shift) & (surface_shift == surface)
+        ends.append(t_shift)
+    with np.errstate(invalid="ignore"):
+        # Range change across the beam's own fan: tan(incidence) = dr / (r da).
+        tan_incidence = np.abs(ends[0] - ends[1]) / (2 * margin_rad * t)
+    return keep & (tan_incidence < _MAX_TAN_INCIDENCE)
+
+
+def _robust_sigma(r: np.ndarray) -> float:
+    return 1.4826 * float(np.median(np.abs(r - np.median(r))))
+
+
+def _search_encoder_offset(beams: _Beams, nominal: RigGeometry, target: CalibrationTarget, x: np.ndarray,
+                           clip_m: float) -> float:
+    """The encoder offset (degrees) whose residuals fit best, searched over a whole turn:
+    only its basin matters, the joint fit refines it."""
+    k = PARAMETERS.index("encoder_offset_deg")
+    best = (np.inf, x[k])
+    for step_deg, span_deg in ((2.0, 180.0), (0.25, 2.5)):
+        centre = best[1]
+        for offset in centre + np.arange(-span_deg, span_deg + step_deg / 2, step_deg):
+            trial = x.copy()
+            trial[k] = offset
+            t = _predict(beams, nominal, target, trial)[0]
+            r = np.where(np.isfinite(t), beams.range_m - t, clip_m)
+            cost = float(np.sum(np.minimum(r * r, clip_m * clip_m)))
+            if cost < best[0]:
+                best = (cost, float(offset))
+    return (best[1] + 180.0) % 360.0 - 180.0
 
 
 def calibrate(raw: RawScan, *, nominal: RigGeometry = RigGeometry(), target: CalibrationTarget = CALIBRATION_TARGET,
-              max_points: int = 30_000, loss_scale_m: float = 0.003, seed: int = 0) -> Calibration:
+              range_offset_m: float | None = 0.0, range_offset_std_m: float = 0.0, place_target: bool = True, max_points: int = 80_000,
+              search_encoder: bool = True, seed: int = 0) -> Calibration:
     """Fits the rig geometry to a raw record of the calibration target.
 
     Args:
-      raw: the raw record (simulated, or from a real rig's bag).
-      nominal: where to start, and the fixed geometry (disk size); its
-        ``encoder_offset_deg`` is the starting offset.
-      target: the target's sizes.
-      max_points: returns used at most (a fixed random subset of those near the target).
-      loss_scale_m: the soft-L1 loss's scale: residuals beyond a few of these count little.
+      raw: the raw record (simulated, or from a real rig's bag). Its line times,
+        ranges, statuses, beam angles and encoder readings are used; a simulated
+        record's ground truth is not.
+      nominal: where to start, and the fixed geometry (disk size). Distance and
+        height within a few centimetres, angles within a few degrees; its
+        ``encoder_offset_deg`` is where the search for the encoder's zero starts.
+      target: the target's sizes (as built and measured).
+      range_offset_m: the LiDAR's known range offset on the target (measured minus
+        true, metres; ``plantsim sensor fit`` measures it against a flat plate),
+        subtracted from every range. None fits it as well: the target sees the
+        LiDAR over too narrow a fan to tell a range offset from the distance well
+        (``docs/calibration.md``), so the distance's uncertainty grows several-fold.
+      range_offset_std_m: how well the range offset is known (1 sigma, metres): its
+        effect on each parameter is added to the stated uncertainties (a told offset
+        that is off by b moves the distance by about b).
+      place_target: fit where the target stands on the disk (its centre's x and y);
+        False takes it as centred on the axis exactly.
+      max_points: beams used at most (a fixed random subset of those on the target).
+      search_encoder: search the whole turn for the encoder's zero (False: start at
+        ``nominal.encoder_offset_deg``, which must then be within a few degrees).
       seed: the subset's seed.
 
+    Returns:
+      The fitted geometry with its uncertainties.
+
     Raises:
-      ValueError: too few returns near the target to fit six parameters.
+      ValueError: too few returns near the target, or too few lines to see it
+        from enough sides to fit the parameters.
     """
     from scipy.optimize import least_squares
 
-    ok = raw.status == BeamStatus.OK
-    lines, beams = np.nonzero(ok)
-    # The angle the rig believes, as it would be read with no encoder offset.
-    readings = raw.turntable_angle_rad[lines, beams] + raw.encoder_offset_rad
-    # Keep returns near the target under the nominal rig: within its bounding cylinder, with margin.
-    reach = target.drum_radius_m + target.fin_length_m + 0.03
-    top = target.drum_height_m + target.post_height_m + 0.03
-    p0 = _points(raw, nominal, lines, beams, readings)
-    near = (np.hypot(p0[:, 0], p0[:, 1]) < min(reach, nominal.disk_radius_m)) & (p0[:, 2] > -0.02) & (p0[:, 2] < top)
-    above_disk = int((near & (p0[:, 2] > 0.005)).sum())
-    lines, beams, readings = lines[near], beams[near], readings[near]
-    if above_disk < 200:
+    if max_points < 500:
+        raise ValueError(f"max_points must be at least 500, got {max_points}")
+    ok = (raw.status == BeamStatus.OK) & np.isfinite(raw.range_m)
+    lines, beams_i = np.nonzero(ok)
+    readings = raw.turntable_angle_rad[lines, beams_i] + raw.encoder_offset_rad
+    n_lines = int(np.unique(lines).size)
+    if n_lines < 24:
+        raise ValueError(f"the record has {n_lines} lines with returns; calibration needs the target seen from all "
+                         f"sides: scan a whole turn in steps of 15 degrees or less (1 degree is best)")
+    # Candidates: returns within a generous cylinder around the target under the starting rig
+    # (4 sigma of noise wider than the disk, so the final choice, made by prediction, is not cut).
+    margin = 0.04
+    p0 = base_to_turntable(points_base_from_ranges(raw.range_m[lines, beams_i], raw.beam_angle_rad[beams_i],
+                                                   nominal.T_base_lidar()),
+                           readings - math.radians(nominal.encoder_offset_deg))
+    radius = np.hypot(p0[:, 0], p0[:, 1])
+    near = (radius < nominal.disk_radius_m + margin) & (p0[:, 2] > -margin) & (p0[:, 2] < target.top_m + margin)
+    above_disk = int((near & (p0[:, 2] > 0.01) & (radius < target.reach_m + 0.02)).sum())
+    if above_disk < 500:
         raise ValueError(f"only {above_disk} returns lie near the calibration target under the starting rig "
                          f"geometry; scan the target (plant bundled = \"calibration-target\") and start from a rig "
                          f"within a few centimetres of the real one ([rig] in the configuration)")
-    if len(lines) > max_points:
-        keep = np.sort(np.random.default_rng(seed).choice(len(lines), max_points, replace=False))
-        lines, beams, readings = lines[keep], beams[keep], readings[keep]
+    rng = np.random.default_rng(seed)
+    sel = np.nonzero(near)[0]
+    beams = _Beams(range_m=raw.range_m[lines[sel], beams_i[sel]].astype(np.float64),
+                   beam_angle_rad=raw.beam_angle_rad[beams_i[sel]], reading_rad=readings[sel])
 
-    a = raw.beam_angle_rad[beams]
-    dirs_lidar = np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
-    measured = raw.range_m[lines, beams]
+    def subset(mask: np.ndarray, n: int) -> _Beams:
+        idx = np.nonzero(mask)[0]
+        if len(idx) > n:
+            idx = np.sort(rng.choice(idx, n, replace=False))
+        return _Beams(beams.range_m[idx], beams.beam_angle_rad[idx], beams.reading_rad[idx])
 
-    def residuals(z):
-        # Range noise lies along the beam: compare each measured range with the range
-        # to the target along the same beam under this geometry; a beam that would
-        # miss the target is measured by its point's distance to the surface instead.
-        rig = _rig_with(nominal, x0 + z * _SCALE)
-        T = rig.T_base_lidar()
-        theta = readings - math.radians(rig.encoder_offset_deg)
-        c, s = np.cos(-theta), np.sin(-theta)
-        o = T[:3, 3]
-        origins = np.stack([c * o[0] - s * o[1], s * o[0] + c * o[1], np.full_like(c, o[2])], axis=1)
-        d = dirs_lidar @ T[:3, :3].T
-        dirs = np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=1)
-        predicted = ray_distance(target, origins, dirs, disk_radius_m=rig.disk_radius_m,
-                                 disk_thickness_m=rig.disk_thickness_m)
-        hit = np.isfinite(predicted)
-        out = np.empty(len(measured))
-        out[hit] = measured[hit] - predicted[hit]
-        if not hit.all():
-            miss = ~hit
-            out[miss] = target.distance(origins[miss] + measured[miss, None] * dirs[miss],
-                                        disk_radius_m=rig.disk_radius_m)
-        return out
+    if range_offset_m is not None and not (isinstance(range_offset_m, (int, float)) and math.isfinite(range_offset_m)
+                                           and abs(range_offset_m) < 0.1):
+        raise ValueError(f"range_offset_m must be a number of metres within +-0.1 or None (fit it), "
+                         f"got {range_offset_m!r}")
+    if not (isinstance(range_offset_std_m, (int, float)) and 0 <= range_offset_std_m < 0.1):
+        raise ValueError(f"range_offset_std_m must be a number of metres in [0, 0.1), got {range_offset_std_m!r}")
+    x0 = np.array([getattr(nominal, k) for k in PARAMETERS]
+                  + [0.0 if range_offset_m is None else float(range_offset_m), 0.0, 0.0], dtype=np.float64)
+    free = np.array([True] * len(PARAMETERS) + [range_offset_m is None, place_target, place_target])
+    x = x0.copy()
+    if search_encoder:
+        x[PARAMETERS.index("encoder_offset_deg")] = _search_encoder_offset(
+            subset(np.ones(len(beams.range_m), bool), 2000), nominal, target, x, clip_m=0.03)
+    lower = np.where(np.isfinite(_BOUNDS), (-_BOUNDS) / _SCALE, -np.inf)
+    upper = np.where(np.isfinite(_BOUNDS), _BOUNDS / _SCALE, np.inf)
+    step_rad = float(np.median(np.abs(np.diff(raw.beam_angle_rad)))) if raw.n_beams > 1 else 0.0
+    margins = (math.radians(3.0), math.radians(1.5), max(math.radians(0.75), 2 * step_rad))
+    for round_index, margin_rad in enumerate(margins):
+        final = round_index == len(margins) - 1
+        inside = _interior(beams, nominal, target, x, margin_rad)
+        if inside.sum() < 200:
+            raise ValueError(f"only {int(inside.sum())} returns fall on the calibration target's surfaces; scan "
+                             f"the target as plantsim.plant.target describes and start from a rig near the real one")
+        # The first rounds only bring the geometry near enough to choose the beams again: a subset will do.
+        use = subset(inside, max_points if final else min(max_points, 6000))
+        centre = x.copy()
 
-    x0 = np.array([getattr(nominal, k) for k in PARAMETERS], dtype=np.float64)
-    # Only the fin breaks the target's symmetry, so the encoder offset has a narrow basin:
-    # find it first by a search over a whole turn (the other parameters at their start).
-    offset_index = PARAMETERS.index("encoder_offset_deg")
-    z = np.zeros(len(PARAMETERS))
-    base_scale = max(loss_scale_m, 1.5 * float(np.median(np.abs(residuals(z)))))
-    best = (np.inf, 0.0)
-    for step_deg, span_deg in ((2.0, 180.0), (0.25, 3.0)):
-        centre = best[1]
-        for offset in centre + np.arange(-span_deg, span_deg + step_deg / 2, step_deg):
-            z[offset_index] = offset / _SCALE[offset_index]
-            r = residuals(z) / base_scale
-            cost = float(np.sum(np.log1p(r * r)))
-            if cost < best[0]:
-                best = (cost, offset)
-    z = np.zeros(len(PARAMETERS))
-    z[offset_index] = best[1] / _SCALE[offset_index]
-    # The loss's scale follows the data's noise: the median absolute residual at the start
-    # (a realistic sensor's ranges scatter by centimetres, an ideal one's by nothing).
-    scale = max(loss_scale_m, 1.5 * float(np.median(np.abs(residuals(z)))))
-    for _ in range(4):  # shrink the scale as the fit settles, down to the noise
-        fit = least_squares(residuals, z, loss="cauchy", f_scale=scale, x_scale=1.0, diff_step=1e-3,
-                            bounds=(-_BOUNDS / _SCALE, _BOUNDS / _SCALE), max_nfev=100)
-        z = fit.x
-        new_scale = max(loss_scale_m, 1.5 * float(np.median(np.abs(fit.fun))))
-        if new_scale > 0.8 * scale:
-            break
-        scale = new_scale
-    x = x0 + z * _SCALE
+        def fun(z_free, use=use, centre=centre):
+            z = np.zeros(len(_ALL))
+            z[free] = z_free
+            return _residuals(use, nominal, target, centre + z * _SCALE)
+
+        r0 = fun(np.zeros(int(free.sum())))
+        scale = max(_robust_sigma(r0), 2e-4)
+        shift = (centre - x0) / _SCALE
+        def jac(z_free, use=use, centre=centre):
+            z = np.zeros(len(_ALL))
+            z[free] = z_free
+            return _jacobian(use, nominal, target, centre + z * _SCALE, free)
+
+        fit = least_squares(fun, np.zeros(int(free.sum())), jac=jac, loss="cauchy", f_scale=2 * scale, x_scale=1.0,
+                            bounds=((lower - shift)[free], (upper - shift)[free]), max_nfev=100 if final else 25,
+                            ftol=1e-10 if final else 1e-8, xtol=1e-10 if final else 1e-8)
+        x = centre.copy()
+        x[free] += fit.x * _SCALE[free]
+        log.debug("calibration round %d: %d beams, margin %.2f deg, %s after %d evaluations, cost %.6g",
+                  round_index, len(use.range_m), math.degrees(margin_rad), fit.message, fit.nfev, fit.cost)
     res = fit.fun
-    loss_scale_m = scale
-    kept = np.abs(res) < 3 * loss_scale_m
+    sigma = max(_robust_sigma(res), 1e-9)
+    kept = np.abs(res - np.median(res)) < 3 * sigma
+    # least_squares's Jacobian is weighted by the loss (beams far out count less), as the fit
+    # weighted them; it gives larger, more honest sigmas than the plain one (docs/calibration.md).
     J = fit.jac[kept]
-    dof = max(int(kept.sum()) - len(PARAMETERS), 1)
-    s2 = float(np.sum(res[kept] ** 2) / dof)
+    n_kept = int(kept.sum())
+    dof = max(n_kept - int(free.sum()), 1)
+    # Fixed parameters: no uncertainty from this fit (zero), no correlation (NaN).
+    std = np.zeros(len(_ALL))
+    correlation = np.full((len(_ALL), len(_ALL)), np.nan)
     try:
-        cov = np.linalg.inv(J.T @ J) * s2
-        std = np.sqrt(np.clip(np.diag(cov), 0, None)) * _SCALE
+        # One residual variance for all beams. (The heteroscedasticity-consistent sandwich form
+        # gives 15 % smaller sigmas here: the oblique faces are not noisier than the rest.)
+        cov_z = np.linalg.inv(J.T @ J) * float(np.sum(res[kept] ** 2) / dof)
+        std_z = np.sqrt(np.clip(np.diag(cov_z), 0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            correlation[np.ix_(free, free)] = cov_z / np.outer(std_z, std_z)
+        if range_offset_m is not None and range_offset_std_m > 0:
+            # A told offset off by db shifts the fit by dz = (J^T J)^-1 J^T dr/db db, with dr/db = -1.
+            dz_db = np.linalg.solve(J.T @ J, J.T @ -np.ones(len(J)))
+            cov_z = cov_z + np.outer(dz_db, dz_db) * range_offset_std_m ** 2
+            std_z = np.sqrt(np.clip(np.diag(cov_z), 0, None))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                correlation[np.ix_(free, free)] = cov_z / np.outer(std_z, std_z)
+        std[free] = std_z * _SCALE[free]
     except np.linalg.LinAlgError:
-        std = np.full(len(PARAMETERS), np.inf)
-    return Calibration(rig=_rig_with(nominal, x), std={k: float(v) for k, v in zip(PARAMETERS, std)},
+        std[free] = np.inf
+    x[PARAMETERS.index("encoder_offset_deg")] = (x[PARAMETERS.index("encoder_offset_deg")] + 180.0) % 360.0 - 180.0
+    std_by_name = {k: float(v) for k, v in zip(_ALL, std)}
+    return Calibration(rig=_rig_with(nominal, x), std=std_by_name,
+                       nuisance={k: float(v) for k, v in zip(NUISANCE, x[len(PARAMETERS):])},
+                       observable={k: bool(std_by_name[k] < OBSERVABLE_STD[k]) for k in _ALL},
+                       correlation=correlation,
                        rms_m=float(np.sqrt(np.mean(res[kept] ** 2))) if kept.any() else float("nan"),
-                       n_points=int(len(res)), n_kept=int(kept.sum()), start=nominal)
+                       n_points=len(res), n_kept=int(kept.sum()), start=nominal)
 
 
 def rig_toml(calibration: Calibration, *, source: str = "") -> str:
     """A ``[rig]`` TOML section with the fitted geometry, the uncertainties as comments."""
     rig = calibration.rig
+
+    def shown(name: str, value: float) -> str:
+        return f"{value * 1e3:.3f} mm" if name.endswith("_m") else f"{value:.3f} deg"
+
     lines = ["# Rig geometry fitted by `plantsim calibrate`" + (f" from {source}" if source else ""),
-             f"# {calibration.n_kept:,} of {calibration.n_points:,} returns on the target; RMS "
+             f"# {calibration.n_kept:,} of {calibration.n_points:,} returns on the target; RMS range residual "
              f"{calibration.rms_m * 1e3:.3f} mm. Uncertainties: one standard deviation of the fit.",
+             "# Not rig geometry, fitted alongside: " + ", ".join(
+                 f"{k} {shown(k, v)} " + (f"+- {shown(k, calibration.std[k])}" if calibration.std[k] > 0 else "(given)")
+                 for k, v in calibration.nuisance.items()),
              "[rig]"]
-    units = {"m": 1e3, "deg": 1.0}
     for name in PARAMETERS:
-        unit = "m" if name.endswith("_m") else "deg"
-        shown = f"{calibration.std[name] * units[unit]:.3g} {'mm' if unit == 'm' else 'deg'}"
-        lines.append(f"{name} = {getattr(rig, name)!r}  # +- {shown}")
+        flag = "" if calibration.observable[name] else "  (NOT pinned by this scan)"
+        lines.append(f"{name} = {getattr(rig, name)!r}  # +- {shown(name, calibration.std[name])}{flag}")
     for name in ("disk_radius_m", "disk_thickness_m", "pedestal_height_m"):
         lines.append(f"{name} = {getattr(rig, name)!r}")
     return "\n".join(lines) + "\n"

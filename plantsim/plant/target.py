@@ -1,25 +1,36 @@
-"""The calibration target: three simple parts a user can build, with an exact distance function.
+"""The calibration target: two simple parts a user can build, with an exact distance function.
 
-Set on the turntable disk, centred on the axis (turntable frame: origin on the
-axis at the disk top, +Z up, +X towards the LiDAR at turntable angle 0):
+Set on the turntable disk (turntable frame: origin on the axis at the disk top,
++Z up, +X towards the LiDAR at turntable angle 0):
 
 =========  ==============================================================================
 part       what and where (millimetres)
 =========  ==============================================================================
-drum       a cylinder of radius 50, height 150, standing on the disk, its axis on the
-           turntable axis (a tin can or a length of 100 mm pipe with a flat cap)
-post       a cylinder of radius 20, height 150, standing on the drum's top, on the axis
-           (a 40 mm dowel): its top is 300 mm above the disk
-fin        a flat plate 40 long, 10 thick, 200 tall, standing on the disk against the
-           drum at turntable angle 0: x 50..90, y -5..5, z 0..200 (a strip of plywood)
+block      a rectangular block 150 long (X), 110 wide (Y), 100 tall (Z), standing on the
+           disk, its centre on the turntable axis, its long side along X: x -75..75,
+           y -55..55, z 0..100 (sawn from timber, or glued from 18 mm MDF sheets)
+post       a cylinder of radius 20, 200 tall, standing on the block's top on its long
+           centre line, 40 from the block's centre towards +X: centre (40, 0), z 100..300
+           (a 40 mm dowel, glued into a shallow 40 mm hole or onto the top)
 =========  ==============================================================================
 
-Matte, light surfaces (paint or paper) suit a LiDAR best. What each part makes
-observable (see :mod:`plantsim.cloud.calibration`): the drum's range fixes the
-LiDAR's distance from the axis and, by where the beams graze it, the plane's
-offset from the axis (yaw); the disk top and the drum's and post's tops fix the
-height, the tilt and the roll; the fin is the only part that is not round, and
-fixes the turntable's zero (the encoder's offset).
+How to place it: mark the disk's centre (the axis), set the block's centre on it
+(a pencil cross on the block's underside helps; a few millimetres off is fine, the
+fit estimates where the block stands), long side along the direction that is to be
+turntable angle 0, the post on the side towards +X. Matte, light surfaces (paint or
+paper) suit a LiDAR best; the sizes must be right to a few tenths of a millimetre
+(measure them and pass them as a :class:`CalibrationTarget`).
+
+Why this shape (what each part makes observable, see :mod:`plantsim.cloud.calibration`
+and ``docs/calibration.md``): a round part centred on the axis looks the same from
+every side, and a scan plane that misses the axis by ``e`` (yaw) changes its range
+only by about ``e^2 / 2r``; the block's flat faces change range by ``e tan(psi)``
+(psi the face's angle to the beam), first order, and its faces at two distances
+from the axis (75 and 55 mm) tell that lateral offset from a turn of the table
+(the encoder's zero). The post off the axis breaks the block's half-turn symmetry
+so that the zero is unique, and with its 200 mm of height spanning the LiDAR's
+horizon fixes the fan's tilt; the block's top and the disk's top, two horizontal
+surfaces at different depths below the LiDAR, fix its height and roll.
 """
 
 from __future__ import annotations
@@ -31,26 +42,54 @@ import numpy as np
 
 @dataclasses.dataclass(frozen=True)
 class CalibrationTarget:
-    """The target's sizes, metres (see the module docstring)."""
+    """The target's sizes, metres (see the module docstring).
 
-    drum_radius_m: float = 0.050
-    drum_height_m: float = 0.150
+    Attributes:
+      block_length_m, block_width_m, block_height_m: the block's size along X, Y, Z.
+      post_radius_m, post_height_m: the post's radius and height (it stands on the block).
+      post_offset_m: the post's axis from the block's centre along +X.
+      sections: facets around the post in the mesh.
+    """
+
+    block_length_m: float = 0.150
+    block_width_m: float = 0.110
+    block_height_m: float = 0.100
     post_radius_m: float = 0.020
-    post_height_m: float = 0.150
-    fin_length_m: float = 0.040
-    fin_thickness_m: float = 0.010
-    fin_height_m: float = 0.200
-    sections: int = 256  # facets around a cylinder in the mesh
+    post_height_m: float = 0.200
+    post_offset_m: float = 0.040
+    sections: int = 256
+
+    def __post_init__(self):
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if field.name == "sections":
+                if isinstance(value, bool) or not isinstance(value, int) or value < 8:
+                    raise ValueError(f"sections must be an integer >= 8, got {value!r}")
+            elif isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) \
+                    or value < 0 or (value == 0 and field.name != "post_offset_m"):
+                raise ValueError(f"target {field.name} must be a finite number of metres > 0, got {value!r}")
+        if abs(self.post_offset_m) + self.post_radius_m > self.block_length_m / 2 \
+                or self.post_radius_m > self.block_width_m / 2:
+            raise ValueError(f"the post (radius {self.post_radius_m} m, {self.post_offset_m} m off centre) must "
+                             f"stand on the block's top ({self.block_length_m} x {self.block_width_m} m)")
+
+    @property
+    def top_m(self) -> float:
+        """Height of the post's top above the disk, metres."""
+        return self.block_height_m + self.post_height_m
+
+    @property
+    def reach_m(self) -> float:
+        """The largest distance of any part from the block's centre line, metres."""
+        return float(np.hypot(self.block_length_m / 2, self.block_width_m / 2))
 
     def parts(self) -> dict:
-        """Each part as (kind, centre (3,), sizes): "cylinder" radius, half height; "box" half extents."""
-        d, p = self.drum_radius_m, self.post_radius_m
+        """Each part as (kind, centre (3,), sizes): "cylinder" (radius, half height); "box" half extents (3,)."""
         return {
-            "drum": ("cylinder", np.array([0.0, 0.0, self.drum_height_m / 2]), (d, self.drum_height_m / 2)),
-            "post": ("cylinder", np.array([0.0, 0.0, self.drum_height_m + self.post_height_m / 2]),
-                     (p, self.post_height_m / 2)),
-            "fin": ("box", np.array([d + self.fin_length_m / 2, 0.0, self.fin_height_m / 2]),
-                    np.array([self.fin_length_m / 2, self.fin_thickness_m / 2, self.fin_height_m / 2])),
+            "block": ("box", np.array([0.0, 0.0, self.block_height_m / 2]),
+                      np.array([self.block_length_m / 2, self.block_width_m / 2, self.block_height_m / 2])),
+            "post": ("cylinder", np.array([self.post_offset_m, 0.0, self.block_height_m + self.post_height_m / 2]),
+                     (self.post_radius_m, self.post_height_m / 2)),
         }
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray]:
@@ -78,11 +117,7 @@ class CalibrationTarget:
         """
         p = np.asarray(points_turntable, dtype=np.float64)
         out = np.full(len(p), np.inf)
-        solids = list(self.parts().values())
-        if disk_radius_m is not None:
-            solids.append(("cylinder", np.array([0.0, 0.0, -disk_thickness_m / 2]),
-                           (disk_radius_m, disk_thickness_m / 2)))
-        for kind, centre, size in solids:
+        for kind, centre, size in _solids(self, disk_radius_m, disk_thickness_m):
             q = p - centre
             if kind == "cylinder":
                 d = np.stack([np.hypot(q[:, 0], q[:, 1]) - size[0], np.abs(q[:, 2]) - size[1]], axis=1)
@@ -108,10 +143,11 @@ def target_stl_bytes(target: CalibrationTarget = CALIBRATION_TARGET) -> bytes:
     return header + np.uint32(len(faces)).tobytes() + records.tobytes()
 
 
-def _ray_cylinder(o: np.ndarray, d: np.ndarray, centre, radius: float, half: float) -> np.ndarray:
-    """First hit distance of rays with a capped vertical cylinder (inf: miss)."""
+def _ray_cylinder(o: np.ndarray, d: np.ndarray, centre, radius: float, half: float) -> tuple[np.ndarray, np.ndarray]:
+    """First hit of rays with a capped vertical cylinder: distance (inf: miss) and face (0 side, 1 bottom, 2 top)."""
     q = o - centre
     best = np.full(len(o), np.inf)
+    face = np.full(len(o), -1, dtype=np.int64)
     a = d[:, 0] ** 2 + d[:, 1] ** 2
     b = 2 * (q[:, 0] * d[:, 0] + q[:, 1] * d[:, 1])
     c = q[:, 0] ** 2 + q[:, 1] ** 2 - radius ** 2
@@ -120,25 +156,65 @@ def _ray_cylinder(o: np.ndarray, d: np.ndarray, centre, radius: float, half: flo
         root = np.sqrt(np.where(disc >= 0, disc, np.nan))
         for t in ((-b - root) / (2 * a), (-b + root) / (2 * a)):
             z = q[:, 2] + t * d[:, 2]
-            ok = (t > 0) & (np.abs(z) <= half)
-            best = np.where(ok & (t < best), t, best)
-        for cap in (-half, half):
+            ok = (t > 0) & (np.abs(z) <= half) & (t < best)
+            best, face = np.where(ok, t, best), np.where(ok, 0, face)
+        for k, cap in ((1, -half), (2, half)):
             t = (cap - q[:, 2]) / d[:, 2]
             x, y = q[:, 0] + t * d[:, 0], q[:, 1] + t * d[:, 1]
-            ok = (t > 0) & (x * x + y * y <= radius ** 2)
-            best = np.where(ok & (t < best), t, best)
-    return best
+            ok = (t > 0) & (x * x + y * y <= radius ** 2) & (t < best)
+            best, face = np.where(ok, t, best), np.where(ok, k, face)
+    return best, face
 
 
-def _ray_box(o: np.ndarray, d: np.ndarray, centre, half) -> np.ndarray:
-    """First hit distance of rays with an axis-aligned box (inf: miss; slab method)."""
+def _ray_box(o: np.ndarray, d: np.ndarray, centre, half) -> tuple[np.ndarray, np.ndarray]:
+    """First hit of rays with an axis-aligned box (slab method): distance (inf: miss) and face.
+
+    The face is 2 * axis + (1 if the ray enters through the + side): 0..5.
+    """
     q = o - centre
     with np.errstate(divide="ignore", invalid="ignore"):
         t1 = (-np.asarray(half) - q) / d
         t2 = (np.asarray(half) - q) / d
-    near = np.nanmax(np.minimum(t1, t2), axis=1)
+    entry = np.where(np.isnan(t1), -np.inf, np.minimum(t1, t2))
+    near = entry.max(axis=1)
     far = np.nanmin(np.maximum(t1, t2), axis=1)
-    return np.where((far >= near) & (near > 0), near, np.inf)
+    hit = (far >= near) & (near > 0)
+    axis = entry.argmax(axis=1)
+    plus = t2[np.arange(len(o)), axis] < t1[np.arange(len(o)), axis]
+    return np.where(hit, near, np.inf), np.where(hit, 2 * axis + plus, -1)
+
+
+def _solids(target: CalibrationTarget, disk_radius_m: float | None, disk_thickness_m: float) -> list:
+    solids = list(target.parts().values())
+    if disk_radius_m is not None:
+        solids.append(("cylinder", np.array([0.0, 0.0, -disk_thickness_m / 2]), (disk_radius_m, disk_thickness_m / 2)))
+    return solids
+
+
+def ray_hit(target: CalibrationTarget, origins: np.ndarray, dirs: np.ndarray, *,
+            disk_radius_m: float | None = None, disk_thickness_m: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """The first surface of the target (and the disk) along each ray.
+
+    Args:
+      origins, dirs: (n, 3) float64, turntable frame; ``dirs`` unit vectors.
+      disk_radius_m: also the turntable disk (top at z = 0) when given.
+
+    Returns:
+      distance: (n,) float64 metres along the ray, inf for a miss.
+      surface: (n,) int64, which flat face or curved side was hit (8 * part index
+        + face, parts in :meth:`CalibrationTarget.parts` order, the disk last), -1
+        for a miss. Two rays with the same surface hit one smooth surface.
+    """
+    origins = np.asarray(origins, dtype=np.float64)
+    dirs = np.asarray(dirs, dtype=np.float64)
+    best = np.full(len(origins), np.inf)
+    surface = np.full(len(origins), -1, dtype=np.int64)
+    for index, (kind, centre, size) in enumerate(_solids(target, disk_radius_m, disk_thickness_m)):
+        t, face = (_ray_cylinder(origins, dirs, centre, *size) if kind == "cylinder"
+                   else _ray_box(origins, dirs, centre, size))
+        nearer = t < best
+        best, surface = np.where(nearer, t, best), np.where(nearer, 8 * index + face, surface)
+    return best, surface
 
 
 def ray_distance(target: CalibrationTarget, origins: np.ndarray, dirs: np.ndarray, *,
@@ -148,12 +224,35 @@ def ray_distance(target: CalibrationTarget, origins: np.ndarray, dirs: np.ndarra
     Args:
       origins, dirs: (n, 3) float64, turntable frame; ``dirs`` unit vectors.
     """
-    best = np.full(len(origins), np.inf)
-    solids = list(target.parts().values())
-    if disk_radius_m is not None:
-        solids.append(("cylinder", np.array([0.0, 0.0, -disk_thickness_m / 2]), (disk_radius_m, disk_thickness_m / 2)))
-    for kind, centre, size in solids:
-        t = (_ray_cylinder(origins, dirs, centre, *size) if kind == "cylinder"
-             else _ray_box(origins, dirs, centre, size))
-        best = np.minimum(best, t)
-    return best
+    return ray_hit(target, origins, dirs, disk_radius_m=disk_radius_m, disk_thickness_m=disk_thickness_m)[0]
+
+
+def surface_normals(target: CalibrationTarget, points: np.ndarray, surface: np.ndarray, *,
+                    disk_radius_m: float | None = None, disk_thickness_m: float = 0.01) -> np.ndarray:
+    """Outward unit normals at points on the surfaces :func:`ray_hit` named.
+
+    Args:
+      points: (n, 3) float64, metres, turntable frame, on the surfaces.
+      surface: (n,) int64 from :func:`ray_hit` (-1: a miss, normal NaN).
+
+    Returns:
+      (n, 3) float64 unit vectors.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    normals = np.full((len(points), 3), np.nan)
+    for index, (kind, centre, _size) in enumerate(_solids(target, disk_radius_m, disk_thickness_m)):
+        for face in range(6):
+            at = surface == 8 * index + face
+            if not at.any():
+                continue
+            if kind == "box":
+                n = np.zeros(3)
+                n[face // 2] = 1.0 if face % 2 else -1.0
+                normals[at] = n
+            elif face == 0:
+                radial = points[at, :2] - centre[:2]
+                normals[at] = np.column_stack([radial / np.linalg.norm(radial, axis=1, keepdims=True),
+                                               np.zeros(int(at.sum()))])
+            else:
+                normals[at] = [0.0, 0.0, -1.0 if face == 1 else 1.0]
+    return normals
