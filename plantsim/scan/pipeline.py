@@ -108,7 +108,7 @@ def load_configured_plant(config: RunConfig) -> PlantMesh:
     if not options.mesh and options.bundled == "calibration-target" and "plant.placement" not in config.explicit \
             and placement == "base":
         # The target stands where it is built (plantsim.plant.target); "base" would centre its
-        # footprint, fin and all, and move the drum off the axis.
+        # footprint (block and dowel together) and move the block off the axis.
         placement = "none"
     return load_plant(path, units=options.units, up=options.up, placement=placement, T_turntable_mesh=T)
 
