@@ -1,0 +1,466 @@
+"""Continuous rig scans: the servo turns at a set speed while the real LiDAR streams.
+
+The loop of a continuous scan on the physical rig (a Dynamixel servo and a Hokuyo
+URG), the counterpart of :mod:`plantsim.scan.session`'s step loop:
+
+1. The servo is switched to extended-position mode (operating mode 4: multi-turn,
+   the profile's velocity cap is the turning speed; the X-series velocity mode would
+   turn as well, but gives no end point, so a lost host would leave it spinning) and
+   sent to a goal past the end of the sweep at ``rpm`` (Profile Velocity, 0.229 rpm
+   units: the speed actually used is the nearest multiple).
+2. A poller thread reads the servo's Realtime Tick and Present Position in one read
+   (address 120, 16 bytes), as fast as the bus allows; each reading's host time comes
+   from its tick, the servo clock put on the host clock by intersecting the bounds of
+   every read's round trip (:class:`TickClock`). These readings are the encoder log.
+3. The LiDAR streams (MD); each line's beams are on the host clock through the
+   TM-estimated offset. A line is journaled once the encoder log has a reading
+   after its last beam: first the new readings, then the line. Lines are kept from
+   the first one whose start is past the lead-in, one every half line spacing or
+   more, until the scan has ``n_lines``; the reconstruction interpolates the encoder
+   readings to every beam (``angle_mode = "interpolate"``, de-skew).
+4. Every exit path stops the servo: a fault or Ctrl-C switches its torque off at
+   once (the :class:`~plantsim.hardware.safety.SafeStop` of the command checks it
+   again); a normal end holds it where it is, then restores position mode.
+
+Resume: the journal keeps the encoder readings and lines; a resumed run turns the
+table back to a little before the last journaled line (its angle modulo one turn,
+in the journal's frame) and goes on until the scan has all its lines, so a fault
+loses at most the line in flight and the coverage is the full sweep.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from plantsim.errors import HardwareError, ScanInterruptedError
+from plantsim.scan.journal import Journal
+from plantsim.scan.raw import BeamGrid, RawScan
+from plantsim.scan.session import raw_from_lines, real_line
+from plantsim.turntable import units
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int, int], None]
+
+#: The servo's Realtime Tick wraps at 32768 ms.
+TICK_MODULUS_MS = 32768
+#: Profile Velocity's unit, rpm (X series).
+RPM_PER_VELOCITY_UNIT = 0.229
+_READ_ADDRESS, _READ_LENGTH = 120, 16  # Realtime Tick .. Present Position (X-series RAM)
+_POSITION_OFFSET = 12  # Present Position (132) within that block
+_EXTENDED_POSITION_MODE = 4
+_POSITION_MODE = 3
+
+
+def profile_velocity_units(rpm: float) -> int:
+    """The Profile Velocity register value nearest ``rpm`` (at least 1).
+
+    Raises:
+        ValueError: rpm not finite and > 0.
+    """
+    if not (math.isfinite(rpm) and rpm > 0):
+        raise ValueError(f"rpm must be finite and > 0, got {rpm!r}")
+    return max(1, round(rpm / RPM_PER_VELOCITY_UNIT))
+
+
+def servo_rpm(rpm: float) -> float:
+    """The speed the servo really turns at for a requested ``rpm`` (0.229 rpm steps)."""
+    return profile_velocity_units(rpm) * RPM_PER_VELOCITY_UNIT
+
+
+def continuous_line_count(sweep_deg: float, rpm: float, scan_period_s: float) -> int:
+    """Lines of a continuous rig scan: the sweep over the turn per line at the servo's real speed."""
+    per_line_deg = servo_rpm(rpm) * 6.0 * scan_period_s
+    return max(1, math.ceil(sweep_deg / per_line_deg - 1e-9))
+
+
+class TickClock:
+    """The servo's Realtime Tick (ms, wrapping at 32768) on the host clock.
+
+    Every read brackets the servo's reading: it happened between the host's clock
+    before the request (``sent``) and after the reply (``received``), and the servo's
+    clock then read ``tick`` to ``tick + 1`` ms. So the servo-minus-host offset ``c``
+    lies in ``[tick - received, tick + 1 ms - sent]`` for every read; the
+    intersection over all reads is the estimate (its middle; half its width is the
+    uncertainty). A read with a short round trip narrows it most. Should the bounds
+    ever disagree (the two clocks drift apart over a long scan), the least-delay
+    read's middle is used instead.
+    """
+
+    def __init__(self):
+        self._low = -math.inf
+        self._high = math.inf
+        self._best: tuple[float, float] | None = None  # (round trip, offset at its middle)
+        self._last_raw: int | None = None
+        self._unwrapped_ms = 0
+
+    def unwrap(self, tick_ms: int) -> int:
+        """The tick unwrapped against the previous one (reads less than 32 s apart)."""
+        if self._last_raw is None:
+            self._unwrapped_ms = int(tick_ms)
+        else:
+            self._unwrapped_ms += (int(tick_ms) - self._last_raw) % TICK_MODULUS_MS
+        self._last_raw = int(tick_ms)
+        return self._unwrapped_ms
+
+    def add(self, sent_s: float, servo_s: float, received_s: float) -> None:
+        """One read: host clock before and after, the servo's unwrapped tick in s."""
+        self._low = max(self._low, servo_s - received_s)
+        self._high = min(self._high, servo_s + 1e-3 - sent_s)
+        trip = received_s - sent_s
+        if self._best is None or trip < self._best[0]:
+            self._best = (trip, servo_s + 0.5e-3 - 0.5 * (sent_s + received_s))
+
+    @property
+    def offset_s(self) -> float:
+        """Servo clock minus host clock, s."""
+        if self._best is None:
+            raise ValueError("no reading yet")
+        if self._low <= self._high:
+            return 0.5 * (self._low + self._high)
+        return self._best[1]
+
+    @property
+    def uncertainty_s(self) -> float:
+        """Half the width of the offset's interval (or half the best round trip), s."""
+        if self._best is None:
+            return math.inf
+        if self._low <= self._high:
+            return 0.5 * (self._high - self._low)
+        return 0.5 * self._best[0] + 0.5e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class Reading:
+    """One encoder reading: host clock around the read, the servo's tick (unwrapped, s), angle (rad)."""
+
+    sent_s: float
+    servo_s: float
+    received_s: float
+    angle_rad: float
+
+
+class EncoderPoller:
+    """Reads the servo's tick and position in a thread until stopped.
+
+    Args:
+        driver: a connected :class:`~plantsim.hardware.dynamixel.driver.DynamixelTurntable`
+            (used by this thread only while it runs).
+        host_clock: the host clock (the LiDAR driver's).
+    """
+
+    def __init__(self, driver, host_clock: Callable[[], float]):
+        self.driver = driver
+        self.host_clock = host_clock
+        self.clock = TickClock()
+        self.readings: list[Reading] = []
+        self.error: BaseException | None = None
+        self._stop = threading.Event()
+        self._new = threading.Condition()
+        self._thread: threading.Thread | None = None
+
+    def read_once(self) -> Reading:
+        sent = self.host_clock()
+        # One READ of Realtime Tick .. Present Position: the tick and the position of one instant.
+        data = bytes(self.driver._call("read tick and position", "readTxRx", _READ_ADDRESS, _READ_LENGTH,
+                                       check_alert=True))
+        received = self.host_clock()
+        tick = int.from_bytes(data[0:2], "little")
+        ticks = units.to_signed(int.from_bytes(data[_POSITION_OFFSET:_POSITION_OFFSET + 4], "little"), 4)
+        servo_s = self.clock.unwrap(tick) / 1000.0
+        self.clock.add(sent, servo_s, received)
+        return Reading(sent, servo_s, received, float(units.ticks_to_rad(ticks)))
+
+    def start(self) -> "EncoderPoller":
+        self._thread = threading.Thread(target=self._run, name="encoder-poller", daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                reading = self.read_once()
+                with self._new:
+                    self.readings.append(reading)
+                    self._new.notify_all()
+        except BaseException as exc:  # noqa: BLE001 - handed to the scan's thread, which raises it
+            with self._new:
+                self.error = exc
+                self._new.notify_all()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+
+    def host_time(self, reading: Reading) -> float:
+        """A reading's host time: its tick through the offset, within its own round trip."""
+        t = reading.servo_s + 0.5e-3 - self.clock.offset_s
+        return min(max(t, reading.sent_s), reading.received_s)
+
+    def wait_past(self, host_s: float, timeout_s: float) -> None:
+        """Waits until a reading was taken after host time ``host_s``.
+
+        Raises:
+            HardwareError: the poller failed (its error), or no such reading within
+                ``timeout_s`` of wall time (the servo stopped answering).
+        """
+        deadline = time.monotonic() + timeout_s
+        with self._new:
+            while True:
+                if self.error is not None:
+                    if isinstance(self.error, HardwareError):
+                        raise self.error
+                    raise HardwareError(f"reading the servo failed: {self.error}") from self.error
+                if self.readings and self.readings[-1].sent_s > host_s:
+                    return
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise HardwareError(f"servo ID {self.driver.dxl_id} on {self.driver.port_name}: no position "
+                                        f"reading for {timeout_s:g} s during a continuous scan")
+                self._new.wait(min(left, 0.05))
+
+
+class ContinuousServo:
+    """What a continuous scan needs from the servo that :class:`ServoTurntable` lacks:
+    extended-position mode, a turning speed, a goal beyond one turn, a hold.
+
+    Args:
+        turntable: a connected :class:`~plantsim.hardware.dynamixel.turntable.ServoTurntable`.
+    """
+
+    def __init__(self, turntable):
+        self.turntable = turntable
+        self.driver = turntable.driver
+        self._saved_velocity: int | None = None
+
+    def extended_mode(self) -> None:
+        """Operating mode 4 (torque off for the EEPROM write, then on again: it holds where it is)."""
+        d = self.driver
+        self._saved_velocity = d.read_register("Profile Velocity")
+        d.torque_off()
+        d.write_register("Operating Mode", _EXTENDED_POSITION_MODE)
+        d.torque_on()
+
+    def position_rad(self) -> float:
+        return self.driver.position()
+
+    def go(self, goal_rad: float, *, velocity_units: int | None = None) -> None:
+        """Sends the servo towards ``goal_rad`` (multi-turn) at ``velocity_units`` (or the saved profile)."""
+        d = self.driver
+        d.write_register("Profile Velocity", velocity_units if velocity_units is not None else self._saved_velocity)
+        d.write_register("Goal Position", units.rad_to_ticks(goal_rad))
+
+    def move_and_wait(self, goal_rad: float, timeout_s: float) -> float:
+        """Moves to ``goal_rad`` at the saved (gentle) profile and waits until it is there."""
+        self.go(goal_rad)
+        goal_ticks = units.rad_to_ticks(goal_rad)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            ticks = self.driver.read_register("Present Position")
+            if abs(ticks - goal_ticks) <= 2 and self.driver.read_register("Moving") == 0:
+                return units.ticks_to_rad(ticks)
+            if time.monotonic() > deadline:
+                raise HardwareError(f"servo ID {self.driver.dxl_id} did not reach {goal_rad:.4f} rad within "
+                                    f"{timeout_s:g} s before the continuous scan; check for a jam")
+            time.sleep(0.005)
+
+    def hold(self) -> None:
+        """Stops turning: the goal becomes the present position."""
+        d = self.driver
+        d.write_register("Goal Position", d.read_register("Present Position"))
+
+    def restore_position_mode(self) -> None:
+        """Back to position mode with the saved profile, torque on (as ``ServoTurntable.connect`` left it)."""
+        d = self.driver
+        d.torque_off()
+        d.write_register("Operating Mode", _POSITION_MODE)
+        if self._saved_velocity is not None:
+            d.write_register("Profile Velocity", self._saved_velocity)
+        d.torque_on()
+
+
+def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, sweep_deg: float,
+                           journal_path: str | Path, identity: dict, angle_mode: str, T_base_lidar: np.ndarray,
+                           encoder_offset_rad: float = 0.0, resume: bool = False,
+                           lead_in_deg: float = 3.0, move_timeout_s: float = 120.0,
+                           reading_timeout_s: float = 2.0,
+                           progress: Progress | None = None) -> tuple[RawScan, Journal, dict]:
+    """A continuous rig scan with the real LiDAR, journaled line by line.
+
+    Args:
+      turntable: a connected :class:`~plantsim.hardware.dynamixel.turntable.ServoTurntable`;
+        the caller closes it (torque off).
+      source: the real LiDAR (:class:`~plantsim.hardware.urg.source.UrgLineSource`).
+      grid: the sensor's beam grid.
+      rpm: the turning speed asked for (the servo turns at the nearest 0.229 rpm step).
+      sweep_deg: the turn to cover, degrees.
+      journal_path, identity, resume: as :func:`plantsim.scan.session.run_session`.
+      angle_mode: "interpolate" (de-skew) or "line".
+      T_base_lidar: (4, 4) the sensor's pose.
+      encoder_offset_rad: the encoder's reading at turntable angle 0.
+      lead_in_deg: turn before the first line, so the table is at speed.
+      move_timeout_s: limit of the move to the resume point, s (wall clock).
+      reading_timeout_s: a fault when the servo gives no reading for this long, s (wall clock).
+      progress: called with (lines done, lines total).
+
+    Returns:
+      (raw record, journal, timing): timing says how well this run's clocks were
+      known: ``servo_clock_uncertainty_s`` (the Realtime Tick's offset, plus half its
+      1 ms tick), ``lidar_clock_uncertainty_s`` (the TM offset's), ``servo_rpm``
+      (the speed used), ``encoder_readings`` (this run's).
+
+    Raises:
+      JournalError: as in a step scan.
+      ScanInterruptedError: the servo or LiDAR failed (or Ctrl-C: KeyboardInterrupt
+        propagates); the servo's torque is off, the journal keeps every complete line.
+    """
+    if not (math.isfinite(sweep_deg) and 0 < sweep_deg):
+        raise ValueError(f"sweep_deg must be finite and > 0, got {sweep_deg!r}")
+    velocity_units = profile_velocity_units(rpm)
+    omega = servo_rpm(rpm) * 2 * math.pi / 60.0
+    per_line_rad = omega * grid.scan_period_s
+    n_lines = continuous_line_count(sweep_deg, rpm, grid.scan_period_s)
+    header = Journal.make_header(identity, n_lines=n_lines, n_beams=grid.n_beams, started_unix_s=time.time())
+    journal_path = Path(journal_path)
+    if resume and not journal_path.exists():
+        log.warning("no journal at %s to resume; starting a new scan", journal_path)
+        resume = False
+    journal = Journal.resume(journal_path, header) if resume else Journal.create(journal_path, header)
+    started = journal.header["started_unix_s"]
+    servo = ContinuousServo(turntable)
+    host_clock = source.host_clock
+    timing = {"servo_rpm": servo_rpm(rpm), "lidar_clock_uncertainty_s": source.clock_uncertainty_s()}
+    with journal:
+        start = len(journal.lines)
+        if progress is not None:
+            progress(start, n_lines)
+        if start < n_lines:
+            timing.update(_turn_and_stream(journal, servo, source, grid, n_lines=n_lines, velocity_units=velocity_units,
+                             per_line_rad=per_line_rad, sweep_rad=math.radians(sweep_deg),
+                             lead_in_rad=math.radians(lead_in_deg), host_clock=host_clock,
+                             move_timeout_s=move_timeout_s, reading_timeout_s=reading_timeout_s,
+                             progress=progress))
+    raw = raw_from_lines(journal.lines, grid=grid, T_base_lidar=T_base_lidar, angle_mode=angle_mode,
+                         start_unix_ns=int(started * 1e9), encoder_offset_rad=encoder_offset_rad,
+                         encoder=journal.encoder_readings())
+    return raw, journal, timing
+
+
+def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: BeamGrid, *, n_lines: int,
+                     velocity_units: int, per_line_rad: float, sweep_rad: float, lead_in_rad: float,
+                     host_clock, move_timeout_s: float, reading_timeout_s: float, progress) -> dict:
+    path = journal.path
+    start = len(journal.lines)
+    stamps_done, _ = journal.encoder_readings()
+    last_stamp_s = max([journal.lines[-1].stamp_ns / 1e9 if journal.lines else -1.0,
+                        stamps_done[-1] / 1e9 if len(stamps_done) else -1.0])
+    poller = None
+    stream = None
+    finished = False
+    try:
+        try:
+            servo.extended_mode()
+            present = servo.position_rad()
+            if journal.lines:
+                # The journal's frame: the present angle plus whole turns, near the last line.
+                last = journal.lines[-1].reported_angle_rad
+                frame_rad = 2 * math.pi * round((last - present) / (2 * math.pi))
+                begin = last + 0.5 * per_line_rad  # the next line starts past the last one
+                present = servo.move_and_wait(last - frame_rad - lead_in_rad, move_timeout_s)
+                first_line_rad = journal.lines[0].reported_angle_rad
+            else:
+                frame_rad = 0.0
+                begin = present + lead_in_rad
+                first_line_rad = None
+            # Past the end of the sweep by a few lines: the scan stops when it has its lines.
+            end_rad = (first_line_rad if first_line_rad is not None else begin) + sweep_rad + 5 * per_line_rad
+            zero_s = host_clock() - (last_stamp_s + 1.0)  # scan time continues after the journal's
+            poller = EncoderPoller(servo.driver, host_clock)
+            poller.start()
+            poller.wait_past(host_clock(), reading_timeout_s)
+            servo.go(end_rad - frame_rad, velocity_units=velocity_units)
+            next_min = begin
+            stream = source.stream()
+            journaled_readings = 0
+            stalled = 0
+            for line in stream:
+                poller.wait_past(float(line.beam_host_times_s[-1]), reading_timeout_s)
+                with poller._new:
+                    n_readings = len(poller.readings)
+                    # The recent readings only: the line's and those not yet journaled.
+                    lo = max(0, min(journaled_readings, n_readings - 200))
+                    readings = poller.readings[lo:n_readings]
+                times = np.array([poller.host_time(r) for r in readings])
+                angles = np.array([r.angle_rad for r in readings]) + frame_rad
+                first_angle = float(np.interp(line.first_beam_host_s, times, angles))
+                if first_angle < next_min:
+                    stalled += 1
+                    if stalled > 20 + 2 * lead_in_rad / per_line_rad:
+                        raise HardwareError(
+                            f"the turntable does not turn: {stalled} LiDAR lines without progress at "
+                            f"{math.degrees(first_angle):.2f} deg; check the servo's Velocity Limit and load")
+                    continue
+                stalled = 0
+                # The readings not yet journaled, up to the newest, then the line.
+                new = slice(journaled_readings - lo, len(readings))
+                stamps = np.round((times[new] - zero_s) * 1e9).astype(np.int64)
+                keep = _increasing_after(stamps, journal)
+                journal.append_encoder(stamps[keep], angles[new][keep])
+                journaled_readings = n_readings
+                index = len(journal.lines)
+                journal.append(real_line(index, math.nan, first_angle, line.first_beam_host_s - zero_s, line))
+                next_min = first_angle + 0.5 * per_line_rad
+                if progress is not None:
+                    progress(index + 1, n_lines)
+                if index + 1 >= n_lines:
+                    break
+            finished = True
+            return {"servo_clock_uncertainty_s": poller.clock.uncertainty_s + 0.5e-3,
+                    "servo_clock_offset_s": poller.clock.offset_s, "encoder_readings": len(poller.readings)}
+        except HardwareError as exc:
+            done = len(journal.lines)
+            raise ScanInterruptedError(
+                f"{exc} [continuous scan stopped after line {done} of {n_lines}; the {done} complete lines "
+                f"are safe in {path}]", journal_path=str(path), lines_done=done, n_lines=n_lines) from exc
+    finally:
+        if stream is not None:
+            stream.close()  # QT: the laser off, the stream stopped
+        if poller is not None:
+            poller.stop()
+        _stop_servo(servo, finished)
+
+
+def _increasing_after(stamps: np.ndarray, journal: Journal) -> np.ndarray:
+    """Which stamps to journal: strictly increasing, after the last journaled one."""
+    last = journal.encoder_stamp_ns[-1][-1] if journal.encoder_stamp_ns else np.iinfo(np.int64).min
+    keep = np.zeros(len(stamps), bool)
+    for i, stamp in enumerate(stamps):
+        if stamp > last:
+            keep[i] = True
+            last = stamp
+    return keep
+
+
+def _stop_servo(servo: ContinuousServo, finished: bool) -> None:
+    """Every exit: a normal end holds the table and restores position mode; anything
+    else switches the torque off at once (the command's SafeStop checks it again)."""
+    if finished:
+        try:
+            servo.hold()
+            servo.restore_position_mode()
+            return
+        except HardwareError as exc:
+            log.warning("stopping the servo after the scan: %s; switching its torque off", exc)
+    try:
+        servo.driver.emergency_stop()
+    except HardwareError as exc:
+        log.error("servo torque off after the continuous scan NOT confirmed: %s", exc)
