@@ -54,6 +54,8 @@ Progress = Callable[[int, int], None]
 TICK_MODULUS_MS = 32768
 #: Profile Velocity's unit, rpm (X series).
 RPM_PER_VELOCITY_UNIT = 0.229
+#: Profile Acceleration's unit, rev/min^2 (X series, velocity-based profile).
+RPM2_PER_ACCELERATION_UNIT = 214.577
 _READ_ADDRESS, _READ_LENGTH = 120, 16  # Realtime Tick .. Present Position (X-series RAM)
 _POSITION_OFFSET = 12  # Present Position (132) within that block
 _EXTENDED_POSITION_MODE = 4
@@ -250,6 +252,16 @@ class ContinuousServo:
         d.write_register("Operating Mode", _EXTENDED_POSITION_MODE)
         d.torque_on()
 
+    def spinup_rad(self, velocity_units: int) -> float:
+        """The turn the profile needs to reach ``velocity_units`` from rest, rad
+        (v^2 / 2a; 0 when Profile Acceleration is 0, the servo's "as fast as it can")."""
+        accel_units = self.driver.read_register("Profile Acceleration")
+        if accel_units <= 0:
+            return 0.0
+        v = velocity_units * RPM_PER_VELOCITY_UNIT * 2 * math.pi / 60.0
+        a = accel_units * RPM2_PER_ACCELERATION_UNIT * 2 * math.pi / 3600.0
+        return v * v / (2 * a)
+
     def position_rad(self) -> float:
         return self.driver.position()
 
@@ -307,7 +319,7 @@ def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, swe
       angle_mode: "interpolate" (de-skew) or "line".
       T_base_lidar: (4, 4) the sensor's pose.
       encoder_offset_rad: the encoder's reading at turntable angle 0.
-      lead_in_deg: turn before the first line, so the table is at speed.
+      lead_in_deg: least turn before the first line (at least 1.5 x the profile's spin-up), deg.
       move_timeout_s: limit of the move to the resume point, s (wall clock).
       reading_timeout_s: a fault when the servo gives no reading for this long, s (wall clock).
       progress: called with (lines done, lines total).
@@ -369,6 +381,8 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
     try:
         try:
             servo.extended_mode()
+            # Lines start once the table is at speed: the spin-up, with a margin, or lead_in_rad.
+            lead_in_rad = max(lead_in_rad, 1.5 * servo.spinup_rad(velocity_units))
             present = servo.position_rad()
             if journal.lines:
                 # The journal's frame: the present angle plus whole turns, near the last line.

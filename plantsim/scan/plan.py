@@ -201,7 +201,8 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False, real_lidar
                               f"turns the real servo (its own encoder, gains and timing): remove it")
         if mode == "continuous":
             raise ConfigError("continuous rig scans need a LiDAR that streams on its own clock (the real URG); "
-                              "the simulated LiDAR takes lines at rest: use --mode step")
+                              "the simulated LiDAR takes lines at rest: use --lidar urg --lidar-port PORT, "
+                              "or --mode step")
         angle_mode = "line" if tt.deskew else "commanded"
         return ScanPlan(mode=mode, sensor=sensor, motion="hardware", encoder=None, dynamics=None,
                         angle_mode=angle_mode, notes=tuple(notes))

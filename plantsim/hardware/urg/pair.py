@@ -200,6 +200,14 @@ class EmulatorPair:
             raise
         return self
 
+    def replug(self) -> str:
+        """A new LiDAR on a new pty (after :meth:`UrgEmulator.unplug`), seeing the same
+        turntable on the same clock, as a re-plugged sensor; returns its port."""
+        old = self.lidar
+        self.lidar = UrgEmulator(old.scan_provider, clock=old.clock, timestamp_offset_s=self.timestamp_offset_s).start()
+        old.stop()
+        return self.lidar.port_path
+
     def stop(self) -> None:
         if self.lidar is not None:
             self.lidar.stop()
