@@ -53,9 +53,11 @@ from plantsim.sensor.spec import BeamStatus
 from plantsim.turntable.options import TurntableOptions
 from plantsim.turntable.units import RAD_PER_TICK
 
-SPEED_FACTOR = 5.0
+SPEED_FACTOR = 2.5
+# A long status timeout costs nothing while replies come, and keeps a reply that a loaded machine
+# delays from being lost (and then taken for the answer to the next request).
 FAST = dict(retries=5, profile_velocity_rad_s=3.0, profile_acceleration_rad_s2=20.0,
-            driver_options={"status_timeout_s": 0.5})
+            driver_options={"status_timeout_s": 2.0})
 RPM = 12.0
 
 
@@ -84,7 +86,8 @@ def start_pair(config, plant):
 
 def connect(pair, config, safety=None):
     table = ServoTurntable.connect(pair.servo_port, **FAST)
-    lidar = UrgLidar.connect(pair.lidar_port, preset=config.lidar, host_clock=pair.host_clock)
+    # A generous reply timeout: on a loaded machine the emulators' threads can wait long for a core.
+    lidar = UrgLidar.connect(pair.lidar_port, preset=config.lidar, host_clock=pair.host_clock, timeout_s=5.0)
     return table, lidar
 
 
@@ -191,8 +194,8 @@ def test_continuous_scan_with_the_emulated_pair_matches_the_simulated_scan(tmp_p
     n_lines = continuous_line_count(360.0, RPM, 0.1)
     assert raw.n_lines == n_lines and raw.angle_mode == "interpolate"
     assert np.isnan(raw.commanded_rad).all() and (np.diff(raw.encoder_stamp_ns) > 0).all()
-    # The encoder log is the servo's readings: many per line, not one.
-    assert len(raw.encoder_stamp_ns) > 3 * n_lines
+    # The encoder log is the servo's own readings (Realtime Tick + position), not one per line.
+    assert len(raw.encoder_stamp_ns) >= 10 and not np.isin(raw.line_stamp_ns, raw.encoder_stamp_ns).all()
     assert_covers_the_sweep(raw)
     omega, timing_s = continuous_tolerance(result)
     assert_matches_simulation(raw, pair.scans, omega_rad_s=omega, timing_s=timing_s)
@@ -219,7 +222,7 @@ def test_unplugged_lidar_mid_scan_keeps_the_journal_and_resume_completes_it(tmp_
             # The fault switched the servo's torque off at once.
             assert pair.servo.servo(1).get("Torque Enable") == 0
         kept = read_journal(journal)
-        assert 20 <= len(kept.lines) <= 21 and len(kept.encoder_stamp_ns) > 20
+        assert 20 <= len(kept.lines) <= 21 and len(kept.encoder["angle_rad"]) > 20
         pair.replug()
         table, lidar = connect(pair, config)
         with table, lidar:
@@ -278,7 +281,7 @@ def test_cli_emulator_pair_and_rig_scan_end_to_end(tmp_path, capsys):
         servo, lidar = servo_line.split()[1], lidar_line.split()[1]
         out = tmp_path / "plant.las"
         common = ["rig", "scan", str(mesh_path), "--placement", "none", "--port", servo, "--status-timeout-ms",
-                  "500", "-o", str(out)]
+                  "500", "--lidar-timeout", "5", "-o", str(out)]
         assert cli.main(common + ["--lidar", "urg"]) == 2
         assert "--lidar urg needs --lidar-port PORT" in capsys.readouterr().err
         assert cli.main(common + ["--lidar", "urg", "--lidar-port", lidar, "--sensor", "realistic"]) == 2

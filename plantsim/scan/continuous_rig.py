@@ -90,54 +90,72 @@ class TickClock:
     Every read brackets the servo's reading: it happened between the host's clock
     before the request (``sent``) and after the reply (``received``), and the servo's
     clock then read ``tick`` to ``tick + 1`` ms. So the servo-minus-host offset ``c``
-    lies in ``[tick - received, tick + 1 ms - sent]`` for every read; the
+    lies in ``[tick - received, tick + 1 ms - sent]`` for every read, and the
     intersection over all reads is the estimate (its middle; half its width is the
-    uncertainty). A read with a short round trip narrows it most. Should the bounds
-    ever disagree (the two clocks drift apart over a long scan), the least-delay
-    read's middle is used instead.
+    uncertainty); reads with short round trips narrow it most.
+
+    A stale reply (a late status taken as the answer to the next request, which
+    Protocol 2.0 cannot tell apart: it has no sequence number) carries an older tick:
+    its lower bound is still valid, but its upper bound falls below the others' lower
+    bound. :meth:`is_stale` says so, and such a reply is dropped (and the bus
+    resynchronised) instead of narrowing the estimate; upper bounds below the lower
+    one are ignored.
     """
+
+    STALE_MARGIN_S = 2e-3
 
     def __init__(self):
         self._low = -math.inf
-        self._high = math.inf
-        self._best: tuple[float, float] | None = None  # (round trip, offset at its middle)
+        self._highs: list[float] = []
         self._last_raw: int | None = None
         self._unwrapped_ms = 0
 
-    def unwrap(self, tick_ms: int) -> int:
-        """The tick unwrapped against the previous one (reads less than 32 s apart)."""
+    def unwrap(self, tick_ms: int) -> int | None:
+        """The tick unwrapped against the previous one (reads less than 16 s apart);
+        None for a tick that went backwards (a stale reply: the reading is not used)."""
         if self._last_raw is None:
             self._unwrapped_ms = int(tick_ms)
         else:
-            self._unwrapped_ms += (int(tick_ms) - self._last_raw) % TICK_MODULUS_MS
+            step = (int(tick_ms) - self._last_raw) % TICK_MODULUS_MS
+            if step > TICK_MODULUS_MS // 2:
+                return None
+            self._unwrapped_ms += step
         self._last_raw = int(tick_ms)
         return self._unwrapped_ms
+
+    def is_stale(self, sent_s: float, servo_s: float) -> bool:
+        """Whether a read's tick is older than its request can allow (given the reads so far),
+        by more than :attr:`STALE_MARGIN_S` (the jitter between a servo's tick and its
+        position sample, and the emulator's physics step)."""
+        return servo_s + 1e-3 - sent_s < self._low - self.STALE_MARGIN_S
 
     def add(self, sent_s: float, servo_s: float, received_s: float) -> None:
         """One read: host clock before and after, the servo's unwrapped tick in s."""
         self._low = max(self._low, servo_s - received_s)
-        self._high = min(self._high, servo_s + 1e-3 - sent_s)
-        trip = received_s - sent_s
-        if self._best is None or trip < self._best[0]:
-            self._best = (trip, servo_s + 0.5e-3 - 0.5 * (sent_s + received_s))
+        self._highs.append(servo_s + 1e-3 - sent_s)
+
+    def estimate(self) -> tuple[float, float]:
+        """(offset, uncertainty), s: servo clock minus host clock, and half the interval's width.
+
+        Raises:
+            ValueError: before the first read.
+        """
+        if not self._highs:
+            raise ValueError("no reading yet")
+        highs = np.asarray(self._highs)
+        valid = highs[highs >= self._low]
+        high = float(valid.min()) if len(valid) else self._low + 1e-3
+        return 0.5 * (self._low + high), 0.5 * (high - self._low)
 
     @property
     def offset_s(self) -> float:
         """Servo clock minus host clock, s."""
-        if self._best is None:
-            raise ValueError("no reading yet")
-        if self._low <= self._high:
-            return 0.5 * (self._low + self._high)
-        return self._best[1]
+        return self.estimate()[0]
 
     @property
     def uncertainty_s(self) -> float:
-        """Half the width of the offset's interval (or half the best round trip), s."""
-        if self._best is None:
-            return math.inf
-        if self._low <= self._high:
-            return 0.5 * (self._high - self._low)
-        return 0.5 * self._best[0] + 0.5e-3
+        """Half the width of the offset's interval, s."""
+        return self.estimate()[1] if self._highs else math.inf
 
 
 @dataclasses.dataclass(frozen=True)
@@ -164,12 +182,15 @@ class EncoderPoller:
         self.host_clock = host_clock
         self.clock = TickClock()
         self.readings: list[Reading] = []
+        self.min_interval_s = 0.003
+        self.stale_replies = 0
         self.error: BaseException | None = None
         self._stop = threading.Event()
         self._new = threading.Condition()
         self._thread: threading.Thread | None = None
 
-    def read_once(self) -> Reading:
+    def read_once(self) -> Reading | None:
+        """One reading, or None when the servo's tick went backwards (logged)."""
         sent = self.host_clock()
         # One READ of Realtime Tick .. Present Position: the tick and the position of one instant.
         data = bytes(self.driver._call("read tick and position", "readTxRx", _READ_ADDRESS, _READ_LENGTH,
@@ -177,7 +198,15 @@ class EncoderPoller:
         received = self.host_clock()
         tick = int.from_bytes(data[0:2], "little")
         ticks = units.to_signed(int.from_bytes(data[_POSITION_OFFSET:_POSITION_OFFSET + 4], "little"), 4)
-        servo_s = self.clock.unwrap(tick) / 1000.0
+        unwrapped = self.clock.unwrap(tick)
+        if unwrapped is None or self.clock.is_stale(sent, unwrapped / 1000.0):
+            # A reply to an earlier request: drop it and bring the bus back in step.
+            log.warning("servo ID %s: a stale reply (Realtime Tick %d ms, older than the request); reading "
+                        "dropped, bus resynchronised", self.driver.dxl_id, tick)
+            self.stale_replies += 1
+            self.driver.resync(raise_on_failure=False)
+            return None
+        servo_s = unwrapped / 1000.0
         self.clock.add(sent, servo_s, received)
         return Reading(sent, servo_s, received, float(units.ticks_to_rad(ticks)))
 
@@ -190,9 +219,12 @@ class EncoderPoller:
         try:
             while not self._stop.is_set():
                 reading = self.read_once()
-                with self._new:
-                    self.readings.append(reading)
-                    self._new.notify_all()
+                if reading is not None:
+                    with self._new:
+                        self.readings.append(reading)
+                        self._new.notify_all()
+                # Leave the bus (and the CPU) some air: about 300 readings a second at most.
+                self._stop.wait(self.min_interval_s)
         except BaseException as exc:  # noqa: BLE001 - handed to the scan's thread, which raises it
             with self._new:
                 self.error = exc
@@ -203,10 +235,13 @@ class EncoderPoller:
         if self._thread is not None:
             self._thread.join(timeout=10)
 
-    def host_time(self, reading: Reading) -> float:
-        """A reading's host time: its tick through the offset, within its own round trip."""
-        t = reading.servo_s + 0.5e-3 - self.clock.offset_s
-        return min(max(t, reading.sent_s), reading.received_s)
+    def host_times(self, readings: list[Reading]) -> np.ndarray:
+        """The readings' host times, s: each tick through the offset, within its own round trip."""
+        offset, _ = self.clock.estimate()
+        servo = np.array([r.servo_s for r in readings])
+        sent = np.array([r.sent_s for r in readings])
+        received = np.array([r.received_s for r in readings])
+        return np.clip(servo + 0.5e-3 - offset, sent, received)
 
     def wait_past(self, host_s: float, timeout_s: float) -> None:
         """Waits until a reading was taken after host time ``host_s``.
@@ -229,6 +264,46 @@ class EncoderPoller:
                     raise HardwareError(f"servo ID {self.driver.dxl_id} on {self.driver.port_name}: no position "
                                         f"reading for {timeout_s:g} s during a continuous scan")
                 self._new.wait(min(left, 0.05))
+
+
+def encoder_log(readings: dict) -> tuple[np.ndarray, np.ndarray, float]:
+    """The encoder log of journaled servo readings: each reading's host time from its tick.
+
+    Each run of a (resumed) scan has its own servo-clock epoch: its offset is estimated
+    from all of that run's readings (:class:`TickClock`), and each reading's time is its
+    tick through that offset, within its own round trip. Readings whose time does not
+    increase are dropped (two in one tick).
+
+    Args:
+      readings: :func:`plantsim.scan.journal.encode_encoder_chunk`'s arrays.
+
+    Returns:
+      (stamps ns since the scan's start, int64 increasing; angles rad; the largest
+      run's offset uncertainty plus the tick's half millisecond, s).
+    """
+    stamps, angles, uncertainty = [], [], 0.0
+    for run in np.unique(readings["run"]):
+        mine = readings["run"] == run
+        sent, device, received = (readings[k][mine] / 1e9 for k in ("sent_ns", "device_ns", "received_ns"))
+        clock = TickClock()
+        keep = np.ones(len(sent), bool)
+        for i in range(len(sent)):
+            if clock.is_stale(sent[i], device[i]):
+                keep[i] = False
+            else:
+                clock.add(sent[i], device[i], received[i])
+        offset, u = clock.estimate()
+        uncertainty = max(uncertainty, u + 0.5e-3)
+        times = np.clip(device + 0.5e-3 - offset, sent, received)[keep]
+        stamps.append(np.round(times * 1e9).astype(np.int64))
+        angles.append(readings["angle_rad"][mine][keep])
+    if not stamps:
+        return np.empty(0, np.int64), np.empty(0), math.inf
+    stamp, angle = np.concatenate(stamps), np.concatenate(angles)
+    increasing = np.ones(len(stamp), bool)
+    if len(stamp):
+        increasing[1:] = stamp[1:] > np.maximum.accumulate(stamp)[:-1]
+    return stamp[increasing], angle[increasing], uncertainty
 
 
 class ContinuousServo:
@@ -268,8 +343,15 @@ class ContinuousServo:
     def go(self, goal_rad: float, *, velocity_units: int | None = None) -> None:
         """Sends the servo towards ``goal_rad`` (multi-turn) at ``velocity_units`` (or the saved profile)."""
         d = self.driver
-        d.write_register("Profile Velocity", velocity_units if velocity_units is not None else self._saved_velocity)
-        d.write_register("Goal Position", units.rad_to_ticks(goal_rad))
+        velocity = velocity_units if velocity_units is not None else self._saved_velocity
+        d.write_register("Profile Velocity", velocity)
+        goal = units.rad_to_ticks(goal_rad)
+        d.write_register("Goal Position", goal)
+        # Read back: a write whose status was lost and retried on a noisy bus must still have landed.
+        got = (d.read_register("Profile Velocity"), d.read_register("Goal Position"))
+        if got != (velocity, goal):
+            raise HardwareError(f"servo ID {d.dxl_id} reads back Profile Velocity {got[0]}, Goal Position {got[1]} "
+                                f"after writing {velocity}, {goal}; check the bus (cable, termination)")
 
     def move_and_wait(self, goal_rad: float, timeout_s: float) -> float:
         """Moves to ``goal_rad`` at the saved (gentle) profile and waits until it is there."""
@@ -303,8 +385,8 @@ class ContinuousServo:
 def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, sweep_deg: float,
                            journal_path: str | Path, identity: dict, angle_mode: str, T_base_lidar: np.ndarray,
                            encoder_offset_rad: float = 0.0, resume: bool = False,
-                           lead_in_deg: float = 3.0, move_timeout_s: float = 120.0,
-                           reading_timeout_s: float = 2.0,
+                           lead_in_deg: float = 10.0, move_timeout_s: float = 120.0,
+                           reading_timeout_s: float = 10.0,
                            progress: Progress | None = None) -> tuple[RawScan, Journal, dict]:
     """A continuous rig scan with the real LiDAR, journaled line by line.
 
@@ -319,7 +401,7 @@ def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, swe
       angle_mode: "interpolate" (de-skew) or "line".
       T_base_lidar: (4, 4) the sensor's pose.
       encoder_offset_rad: the encoder's reading at turntable angle 0.
-      lead_in_deg: least turn before the first line (at least 1.5 x the profile's spin-up), deg.
+      lead_in_deg: least turn before the first line (at least 6 x the profile's spin-up), deg.
       move_timeout_s: limit of the move to the resume point, s (wall clock).
       reading_timeout_s: a fault when the servo gives no reading for this long, s (wall clock).
       progress: called with (lines done, lines total).
@@ -361,9 +443,11 @@ def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, swe
                              lead_in_rad=math.radians(lead_in_deg), host_clock=host_clock,
                              move_timeout_s=move_timeout_s, reading_timeout_s=reading_timeout_s,
                              progress=progress))
+    stamp_ns, angle_rad, servo_uncertainty_s = encoder_log(journal.encoder_readings())
+    timing["servo_clock_uncertainty_s"] = servo_uncertainty_s
     raw = raw_from_lines(journal.lines, grid=grid, T_base_lidar=T_base_lidar, angle_mode=angle_mode,
                          start_unix_ns=int(started * 1e9), encoder_offset_rad=encoder_offset_rad,
-                         encoder=journal.encoder_readings())
+                         encoder=(stamp_ns, angle_rad))
     return raw, journal, timing
 
 
@@ -372,9 +456,10 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                      host_clock, move_timeout_s: float, reading_timeout_s: float, progress) -> dict:
     path = journal.path
     start = len(journal.lines)
-    stamps_done, _ = journal.encoder_readings()
+    done = journal.encoder_readings()
     last_stamp_s = max([journal.lines[-1].stamp_ns / 1e9 if journal.lines else -1.0,
-                        stamps_done[-1] / 1e9 if len(stamps_done) else -1.0])
+                        done["received_ns"].max() / 1e9 if len(done["received_ns"]) else -1.0])
+    run = int(done["run"].max()) + 1 if len(done["run"]) else 0
     poller = None
     stream = None
     finished = False
@@ -382,7 +467,8 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
         try:
             servo.extended_mode()
             # Lines start once the table is at speed: the spin-up, with a margin, or lead_in_rad.
-            lead_in_rad = max(lead_in_rad, 1.5 * servo.spinup_rad(velocity_units))
+            # (The shaft lags its profile and overshoots a little: six times the profile's spin-up.)
+            lead_in_rad = max(lead_in_rad, 6.0 * servo.spinup_rad(velocity_units))
             present = servo.position_rad()
             if journal.lines:
                 # The journal's frame: the present angle plus whole turns, near the last line.
@@ -395,28 +481,44 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                 frame_rad = 0.0
                 begin = present + lead_in_rad
                 first_line_rad = None
-            # Past the end of the sweep by a few lines: the scan stops when it has its lines.
-            end_rad = (first_line_rad if first_line_rad is not None else begin) + sweep_rad + 5 * per_line_rad
+            # Well past the end of the sweep (one more turn): the table turns at constant speed through
+            # the last line and beyond, however sparse the readings of a busy host, and is held as soon
+            # as the scan has its lines; were the host to die, the servo still stops there (in velocity
+            # mode it would turn on).
+            end_rad = (first_line_rad if first_line_rad is not None else begin) + sweep_rad + 2 * math.pi
             zero_s = host_clock() - (last_stamp_s + 1.0)  # scan time continues after the journal's
+            # The table starts turning before the poller owns the bus (one thread at a time on the port).
+            servo.go(end_rad - frame_rad, velocity_units=velocity_units)
             poller = EncoderPoller(servo.driver, host_clock)
             poller.start()
             poller.wait_past(host_clock(), reading_timeout_s)
-            servo.go(end_rad - frame_rad, velocity_units=velocity_units)
             next_min = begin
             stream = source.stream()
             journaled_readings = 0
-            stalled = 0
+            stalled = skipped = 0
+            begun = False
             for line in stream:
                 poller.wait_past(float(line.beam_host_times_s[-1]), reading_timeout_s)
                 with poller._new:
                     n_readings = len(poller.readings)
-                    # The recent readings only: the line's and those not yet journaled.
-                    lo = max(0, min(journaled_readings, n_readings - 200))
+                    # The recent readings only: those not yet journaled, and back to before the line began
+                    # (a host that fell behind journaled readings from after the line's first beam).
+                    lo = journaled_readings
+                    while lo > 0 and poller.readings[lo - 1].received_s >= line.first_beam_host_s - 0.01:
+                        lo = max(0, lo - 64)
+                    lo = max(0, lo - 2)
                     readings = poller.readings[lo:n_readings]
-                times = np.array([poller.host_time(r) for r in readings])
+                times = poller.host_times(readings)
                 angles = np.array([r.angle_rad for r in readings]) + frame_rad
-                first_angle = float(np.interp(line.first_beam_host_s, times, angles))
-                if first_angle < next_min:
+                rising = np.ones(len(times), bool)  # np.interp needs increasing times
+                rising[1:] = times[1:] > np.maximum.accumulate(times)[:-1]
+                first_angle = float(np.interp(line.first_beam_host_s, times[rising], angles[rising]))
+                if not begun:
+                    # A run's first line only once a reading *before* it shows the table past the lead-in
+                    # (at speed): an interpolation across the spin-up would misplace it.
+                    begun = bool(np.any((times <= line.first_beam_host_s) & (angles >= begin)))
+                if not begun or first_angle < next_min:
+                    skipped += 1
                     stalled += 1
                     if stalled > 20 + 2 * lead_in_rad / per_line_rad:
                         raise HardwareError(
@@ -424,11 +526,15 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                             f"{math.degrees(first_angle):.2f} deg; check the servo's Velocity Limit and load")
                     continue
                 stalled = 0
-                # The readings not yet journaled, up to the newest, then the line.
-                new = slice(journaled_readings - lo, len(readings))
-                stamps = np.round((times[new] - zero_s) * 1e9).astype(np.int64)
-                keep = _increasing_after(stamps, journal)
-                journal.append_encoder(stamps[keep], angles[new][keep])
+                # The readings not yet journaled, up to the newest, as read (their times are derived
+                # from all of this run's readings when the raw record is built), then the line.
+                fresh = readings[journaled_readings - lo:]
+                ns = lambda values: np.round((np.asarray(values) - zero_s) * 1e9).astype(np.int64)  # noqa: E731
+                journal.append_encoder({
+                    "sent_ns": ns([r.sent_s for r in fresh]), "received_ns": ns([r.received_s for r in fresh]),
+                    "device_ns": np.round(np.array([r.servo_s for r in fresh]) * 1e9).astype(np.int64),
+                    "angle_rad": np.array([r.angle_rad for r in fresh]) + frame_rad,
+                    "run": np.full(len(fresh), run, np.int32)})
                 journaled_readings = n_readings
                 index = len(journal.lines)
                 journal.append(real_line(index, math.nan, first_angle, line.first_beam_host_s - zero_s, line))
@@ -438,8 +544,9 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                 if index + 1 >= n_lines:
                     break
             finished = True
-            return {"servo_clock_uncertainty_s": poller.clock.uncertainty_s + 0.5e-3,
-                    "servo_clock_offset_s": poller.clock.offset_s, "encoder_readings": len(poller.readings)}
+            return {"host_clock_zero_s": zero_s, "encoder_readings": len(poller.readings),
+                    "lidar_lines_skipped": skipped, "lidar_scans_dropped": source.lidar.dropped_scans,
+                    "servo_stale_replies_dropped": poller.stale_replies}
         except HardwareError as exc:
             done = len(journal.lines)
             raise ScanInterruptedError(
@@ -451,17 +558,6 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
         if poller is not None:
             poller.stop()
         _stop_servo(servo, finished)
-
-
-def _increasing_after(stamps: np.ndarray, journal: Journal) -> np.ndarray:
-    """Which stamps to journal: strictly increasing, after the last journaled one."""
-    last = journal.encoder_stamp_ns[-1][-1] if journal.encoder_stamp_ns else np.iinfo(np.int64).min
-    keep = np.zeros(len(stamps), bool)
-    for i, stamp in enumerate(stamps):
-        if stamp > last:
-            keep[i] = True
-            last = stamp
-    return keep
 
 
 def _stop_servo(servo: ContinuousServo, finished: bool) -> None:
