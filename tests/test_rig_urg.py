@@ -303,3 +303,45 @@ def test_cli_emulator_pair_and_rig_scan_end_to_end(tmp_path, capsys):
     assert side["simulated"]["turntable"]["mode"] == "continuous"
     assert side["counts"]["points_written"] > 1000
     assert not journal_path_for(out).exists()
+
+
+def test_garbled_streamed_scans_are_dropped_and_the_scan_still_matches(tmp_path, plant):
+    config = config_for(tmp_path, "continuous")
+    pair = start_pair(config, plant)
+    try:
+        table, lidar = connect(pair, config)
+        with table, lidar:
+            def garble_from_5(done, total):
+                if done == 5:
+                    pair.lidar.inject_checksum_errors(150)  # one data line in 150: about one scan in five
+
+            result = run_scan(config, plant=plant, turntable=table, lidar=UrgLineSource(lidar, config.lidar),
+                              progress=garble_from_5)
+    finally:
+        pair.stop()
+    assert result.diagnostics["lidar_scans_dropped"] > 0
+    assert result.parts["lidar"]["dropped_scans"] == result.diagnostics["lidar_scans_dropped"]
+    assert result.raw.n_lines == continuous_line_count(360.0, RPM, 0.1)
+    omega, timing_s = continuous_tolerance(result)
+    assert_matches_simulation(result.raw, pair.scans, omega_rad_s=omega, timing_s=timing_s)
+
+
+def test_stalled_stream_interrupts_the_scan_with_the_servo_stopped(tmp_path, plant):
+    config = config_for(tmp_path, "continuous")
+    pair = start_pair(config, plant)
+    try:
+        table = ServoTurntable.connect(pair.servo_port, **FAST)
+        lidar = UrgLidar.connect(pair.lidar_port, preset=config.lidar, host_clock=pair.host_clock, timeout_s=2.0)
+        with table, lidar:
+            def stall_at_8(done, total):
+                if done == 8:
+                    pair.lidar.inject_stall(after_scans=0)
+
+            with pytest.raises(ScanInterruptedError, match=r"stopped streaming: no scan for .* \[continuous scan "
+                                                           r"stopped after line \d+ of \d+"):
+                run_scan(config, plant=plant, turntable=table, lidar=UrgLineSource(lidar, config.lidar),
+                         progress=stall_at_8)
+            assert pair.servo.servo(1).get("Torque Enable") == 0
+    finally:
+        pair.stop()
+    assert len(read_journal(journal_path_for(config.output.path)).lines) >= 8
