@@ -172,9 +172,13 @@ def continuous_tolerance(result):
 
 
 def assert_covers_the_sweep(raw, sweep_deg=360.0):
+    """Lines in turning order, about one line period apart (a line the host could not place while
+    the machine was starved may be missing: two periods at most), over the whole sweep."""
     per_line = servo_rpm(RPM) * 6.0 * raw.grid.scan_period_s
     starts = np.degrees(raw.encoder_offset_rad + raw.turntable_angle_rad[:, 0])
-    assert (np.diff(starts) > 0.4 * per_line).all() and (np.diff(starts) < 1.6 * per_line).all()
+    gaps = np.diff(starts)
+    bad = np.flatnonzero((gaps <= 0.4 * per_line) | (gaps >= 2.6 * per_line))
+    assert not len(bad), [(int(i), round(float(gaps[i] / per_line), 2)) for i in bad]
     assert starts[-1] - starts[0] >= sweep_deg - 1.6 * per_line
 
 
@@ -281,7 +285,7 @@ def test_cli_emulator_pair_and_rig_scan_end_to_end(tmp_path, capsys):
         servo, lidar = servo_line.split()[1], lidar_line.split()[1]
         out = tmp_path / "plant.las"
         common = ["rig", "scan", str(mesh_path), "--placement", "none", "--port", servo, "--status-timeout-ms",
-                  "500", "--lidar-timeout", "5", "-o", str(out)]
+                  "500", "--lidar-timeout", "15", "-o", str(out)]
         assert cli.main(common + ["--lidar", "urg"]) == 2
         assert "--lidar urg needs --lidar-port PORT" in capsys.readouterr().err
         assert cli.main(common + ["--lidar", "urg", "--lidar-port", lidar, "--sensor", "realistic"]) == 2

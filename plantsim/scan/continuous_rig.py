@@ -272,7 +272,7 @@ def encoder_log(readings: dict) -> tuple[np.ndarray, np.ndarray, float]:
     Each run of a (resumed) scan has its own servo-clock epoch: its offset is estimated
     from all of that run's readings (:class:`TickClock`), and each reading's time is its
     tick through that offset, within its own round trip. Readings whose time does not
-    increase are dropped (two in one tick).
+    are put in time order, one per stamp.
 
     Args:
       readings: :func:`plantsim.scan.journal.encode_encoder_chunk`'s arrays.
@@ -300,10 +300,13 @@ def encoder_log(readings: dict) -> tuple[np.ndarray, np.ndarray, float]:
     if not stamps:
         return np.empty(0, np.int64), np.empty(0), math.inf
     stamp, angle = np.concatenate(stamps), np.concatenate(angles)
-    increasing = np.ones(len(stamp), bool)
-    if len(stamp):
-        increasing[1:] = stamp[1:] > np.maximum.accumulate(stamp)[:-1]
-    return stamp[increasing], angle[increasing], uncertainty
+    # In time order (a reading clipped into its own long round trip may land after the next one's
+    # time), and one reading per stamp.
+    order = np.argsort(stamp, kind="stable")
+    stamp, angle = stamp[order], angle[order]
+    first = np.ones(len(stamp), bool)
+    first[1:] = stamp[1:] > stamp[:-1]
+    return stamp[first], angle[first], uncertainty
 
 
 class ContinuousServo:
@@ -510,9 +513,8 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                     readings = poller.readings[lo:n_readings]
                 times = poller.host_times(readings)
                 angles = np.array([r.angle_rad for r in readings]) + frame_rad
-                rising = np.ones(len(times), bool)  # np.interp needs increasing times
-                rising[1:] = times[1:] > np.maximum.accumulate(times)[:-1]
-                first_angle = float(np.interp(line.first_beam_host_s, times[rising], angles[rising]))
+                order = np.argsort(times, kind="stable")  # np.interp needs increasing times
+                first_angle = float(np.interp(line.first_beam_host_s, times[order], angles[order]))
                 if not begun:
                     # A run's first line only once a reading *before* it shows the table past the lead-in
                     # (at speed): an interpolation across the spin-up would misplace it.
