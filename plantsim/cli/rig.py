@@ -129,6 +129,9 @@ def run_rig_scan(args: argparse.Namespace) -> int:
     if not real and args.lidar_port:
         raise ConfigError("--lidar-port is the real URG's port: add --lidar urg, or remove --lidar-port")
     config = resolve_config(args, scan_overrides(args))
+    if config.turntable.mode == "continuous" and args.settle_s:
+        raise ConfigError("--settle-s is the wait after each move of a step scan; a continuous scan does not stop: "
+                          "remove it, or use --mode step")
     output = check_outputs(config, config_path=args.config)  # fail before the servo moves
     plan_scan(config, hardware_turntable=True, real_lidar=real)  # refuse unused settings before the servo moves
     journal = journal_path_for(output)
