@@ -161,7 +161,7 @@ CLI_CASES = [
      ["rig", "scan", "{mesh}", "--port", "/dev/null-port", "--config", "cfg.toml"],
      "continuous rig scans need a LiDAR that streams"),
     ("rig scan real lidar", {}, ["rig", "scan", "{mesh}", "--port", "/dev/null-port", "--lidar", "urg"],
-     "a real URG LiDAR is not available in rig scans yet"),
+     "--lidar urg needs --lidar-port PORT"),
     ("rig scan output is the mesh", {}, ["rig", "scan", "plant.ply", "--port", "/dev/null-port", "-o", "plant.ply"],
      "is the plant mesh this run reads"),
 ]

@@ -91,7 +91,7 @@ def test_unreachable_servo_and_real_lidar_give_clear_errors(tmp_path, emulator, 
     assert cli.main(wrong_id) == 1
     assert "ID 7 at 57600 bps failed" in capsys.readouterr().err
     assert cli.main(scan_args(emulator, cylinder, out, "--lidar", "urg")) == 2
-    assert "real URG LiDAR is not available in rig scans yet" in capsys.readouterr().err
+    assert "--lidar urg needs --lidar-port PORT" in capsys.readouterr().err
     assert not (tmp_path / "plant.ply.journal").exists()
 
 

@@ -7,8 +7,10 @@ exit code; ``python -m plantsim.cli.rig ...`` also runs them alone.
 Examples::
 
     plantsim emulator --model xm430-w350 --id 1 --baud 57600
+    plantsim emulator --lidar [MESH] [--sensor ideal]   # servo and URG sharing one turntable
     plantsim rig ping --port /dev/ttyUSB0 --baud 57600 --id 1
     plantsim rig scan --port /dev/ttyUSB0 --step-deg 10 -o plant.las [--resume]
+    plantsim rig scan --port /dev/ttyUSB0 --lidar urg --lidar-port /dev/ttyACM0 [--mode continuous --rpm 2]
 """
 
 from __future__ import annotations
@@ -47,6 +49,20 @@ def add_rig_commands(subparsers: argparse._SubParsersAction) -> argparse._SubPar
                           help="simulated seconds per wall second (default: 1)")
     emulator.add_argument("--load-inertia", type=float, default=0.0,
                           help="inertia carried by the shaft, kg m^2 (default: 0)")
+    emulator.add_argument("--lidar", action="store_true",
+                          help="also run an emulated URG-04LX on its own pty that sees the plant on the emulated "
+                               "turntable (at the servo's true angle at each beam's instant); prints "
+                               "'servo: PATH' and 'lidar: PATH'")
+    emulator.add_argument("mesh", nargs="?", help="(--lidar) plant mesh; default: the bundled maize")
+    emulator.add_argument("--config", help="(--lidar) TOML with [plant], [rig], [lidar], [sensor_model], seed")
+    emulator.add_argument("--units", choices=["m", "cm", "mm"], help="(--lidar) the mesh file's unit (default m)")
+    emulator.add_argument("--up", choices=["x", "y", "z"], help="(--lidar) the mesh file's up axis (default z)")
+    emulator.add_argument("--placement", choices=["base", "bbox", "none"],
+                          help="(--lidar) how the plant sits on the disk (default base)")
+    emulator.add_argument("--sensor", choices=["ideal", "realistic"],
+                          help="(--lidar) the emulated LiDAR's ranges: ideal (exact first hits) or realistic "
+                               "(the sensor model: footprint, noise, dropouts; the default)")
+    emulator.add_argument("--seed", type=int, help="(--lidar) seed of the sensor model's noise (default 0)")
     emulator.set_defaults(func=run_emulator)
 
     rig = subparsers.add_parser("rig", help="talk to the real turntable servo")
@@ -63,10 +79,13 @@ def add_rig_scan_command(rig_commands: argparse._SubParsersAction) -> None:
     from plantsim.cli.app import add_common_scan_options
 
     scan = rig_commands.add_parser(
-        "scan", help="scan with the turntable servo (the LiDAR is simulated at its reported angle)",
-        description="Turns the servo through the schedule and takes one simulated LiDAR line (ideal or "
-        "realistic sensor) at each reported angle (hardware in the loop). Each line is journaled to "
-        "OUT.journal as it arrives; after a fault or Ctrl-C, run the same command with --resume.")
+        "scan", help="scan with the turntable servo and the real URG LiDAR (or a simulated one)",
+        description="Turns the servo through the schedule and takes one LiDAR line at each stop: from the "
+        "real Hokuyo URG (--lidar urg --lidar-port PORT), or from the simulated LiDAR (ideal or realistic) at "
+        "the reported angle (--lidar sim, hardware in the loop). With --lidar urg --mode continuous the servo "
+        "turns at --rpm while the URG streams, and each beam's angle is interpolated from the servo's readings. "
+        "Each line is journaled to OUT.journal as it arrives; after a fault or Ctrl-C, run the same command with "
+        "--resume.")
     _add_connection_arguments(scan)
     add_common_scan_options(scan, preset_flag="--lidar-model")
     scan.add_argument("--resume", action="store_true",
@@ -78,7 +97,16 @@ def add_rig_scan_command(rig_commands: argparse._SubParsersAction) -> None:
     scan.add_argument("--settle-s", type=float, default=0.0, help="wait after each move, s (default: 0)")
     scan.add_argument("--lidar", choices=["sim", "urg"], default="sim",
                       help="sim: simulated LiDAR at the servo's reported angle (default); "
-                      "urg: a real Hokuyo (not available yet)")
+                      "urg: the real Hokuyo URG on --lidar-port")
+    scan.add_argument("--lidar-port", help="(--lidar urg) the URG's port: /dev/ttyACM0, "
+                      "/dev/serial/by-id/usb-Hokuyo..., or `plantsim emulator --lidar`'s lidar pty")
+    scan.add_argument("--lidar-timeout", type=float, default=1.0, metavar="S",
+                      help="(--lidar urg) reply timeout of the URG, s (default 1)")
+    scan.add_argument("--mode", choices=["step", "continuous"],
+                      help="step: move, settle, take a line (default); continuous (--lidar urg): the servo turns "
+                      "at --rpm while the LiDAR streams")
+    scan.add_argument("--rpm", type=float, help="continuous mode's turntable speed, rpm (default 1; the servo "
+                      "turns at the nearest multiple of 0.229 rpm)")
     scan.set_defaults(func=run_rig_scan)
 
 
@@ -91,13 +119,21 @@ def run_rig_scan(args: argparse.Namespace) -> int:
     from plantsim.scan.pipeline import check_outputs, check_plant_seen, journal_path_for, run_scan, write_result
     from plantsim.scan.plan import plan_scan
 
+    from plantsim.errors import ConfigError
+
     t0 = time.perf_counter()
-    if args.lidar == "urg":
-        raise HardwareError("a real URG LiDAR is not available in rig scans yet: plantsim's rig scan "
-                            "casts the simulated LiDAR at the servo's reported angle; use --lidar sim")
+    real = args.lidar == "urg"
+    if real and not args.lidar_port:
+        raise ConfigError("--lidar urg needs --lidar-port PORT: the URG's /dev/ttyACM0 or its "
+                          "/dev/serial/by-id/usb-Hokuyo... path (ls -l /dev/serial/by-id)")
+    if not real and args.lidar_port:
+        raise ConfigError("--lidar-port is the real URG's port: add --lidar urg, or remove --lidar-port")
     config = resolve_config(args, scan_overrides(args))
+    if config.turntable.mode == "continuous" and args.settle_s:
+        raise ConfigError("--settle-s is the wait after each move of a step scan; a continuous scan does not stop: "
+                          "remove it, or use --mode step")
     output = check_outputs(config, config_path=args.config)  # fail before the servo moves
-    plan_scan(config, hardware_turntable=True)  # refuse unused settings before the servo moves
+    plan_scan(config, hardware_turntable=True, real_lidar=real)  # refuse unused settings before the servo moves
     journal = journal_path_for(output)
     if journal.exists() and not args.resume:
         print(f"plantsim: error: {journal} holds an unfinished scan; run the same command with --resume "
@@ -116,8 +152,17 @@ def run_rig_scan(args: argparse.Namespace) -> int:
                 print(f"plantsim: error: {exc}", file=sys.stderr)
                 return 1
             with turntable:
-                result = run_scan(config, turntable=turntable, resume=args.resume, settle_s=args.settle_s,
-                                  progress=progress)
+                source = None
+                if real:
+                    source = _connect_urg(args, config, safety)
+                    if source is None:
+                        return 1
+                try:
+                    result = run_scan(config, turntable=turntable, resume=args.resume, settle_s=args.settle_s,
+                                      progress=progress, lidar=source)
+                finally:
+                    if source is not None:
+                        source.lidar.close()  # QT: laser off
     except UnsafeStopError:
         close_bar()  # the DANGER line is printed
         return 1
@@ -132,10 +177,49 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         return _interrupt_exit_code(exc)
     finally:
         close_bar()
-    check_plant_seen(result)
+    if not real:  # a real LiDAR does not know what it hit
+        check_plant_seen(result)
     path = write_result(result, keep_journal=args.keep_journal)
+    if real:
+        lidar = result.parts["lidar"]
+        resumed = f" ({result.lines_resumed} resumed from the journal)" if result.lines_resumed else ""
+        raw = f" and the raw bag to {result.config.output.raw}" if result.config.output.raw else ""
+        print(f"wrote {len(result.cloud):,} points from {result.raw.n_lines} lines{resumed} x {result.raw.n_beams} "
+              f"beams (real {lidar['model']} serial {lidar['serial']}, servo turntable, {result.plan.mode} mode) "
+              f"to {path}{raw} in {time.perf_counter() - t0:.2f} s")
+        return 0
     print(summary_line(result, path, time.perf_counter() - t0))
     return 0
+
+
+def _connect_urg(args: argparse.Namespace, config, safety):
+    """The URG as a line source, its laser registered with ``safety``; None (after one
+    line on stderr) when it cannot be reached or is not the configured model."""
+    from plantsim.errors import LidarError, LidarModelError
+    from plantsim.hardware.urg.driver import UrgLidar, check_model
+    from plantsim.hardware.urg.source import UrgLineSource
+    from plantsim.sensor.spec import PRESETS
+
+    try:
+        lidar = UrgLidar.connect(args.lidar_port, preset=config.lidar, timeout_s=args.lidar_timeout, safety=safety)
+    except LidarModelError as exc:
+        fits = []
+        info = getattr(exc, "info", None)
+        for name, spec in sorted(PRESETS.items()):
+            try:
+                if info is not None and spec.steps_per_rev is not None:
+                    check_model(info, spec)
+                    fits.append(name)
+            except (LidarModelError, ValueError):
+                pass
+        hint = f"; use --lidar-model {fits[0]}" if fits else "; choose the --lidar-model of this sensor"
+        text = str(exc).split("; choose the preset")[0]
+        print(f"plantsim: error: {text}{hint}", file=sys.stderr)
+        return None
+    except LidarError as exc:
+        print(f"plantsim: error: {exc}", file=sys.stderr)
+        return None
+    return UrgLineSource(lidar, config.lidar)
 
 
 @contextlib.contextmanager
@@ -196,6 +280,14 @@ def run_emulator(args: argparse.Namespace) -> int:
     from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 
     ids = args.ids or [1]
+    lidar_only = [f"--{name}" for name in ("config", "units", "up", "placement", "sensor", "seed")
+                  if getattr(args, name, None) is not None] + (["MESH"] if getattr(args, "mesh", None) else [])
+    if getattr(args, "lidar", False):
+        return _run_emulator_pair(args, ids)
+    if lidar_only:
+        from plantsim.errors import ConfigError
+
+        raise ConfigError(f"{lidar_only[0]} chooses what the emulated LiDAR sees: add --lidar, or remove it")
     emulator = DynamixelEmulator(ids=ids, model=args.model, baud_bps=args.baud_bps,
                                  speed_factor=args.speed_factor, load_inertia=args.load_inertia)
     # Ctrl-C and SIGTERM stop it, even when a parent started it with SIGINT ignored
@@ -206,6 +298,44 @@ def run_emulator(args: argparse.Namespace) -> int:
         print(emulator.port_path, flush=True)
         print(f"{args.model} ID {', '.join(map(str, ids))} at {args.baud_bps} bps; Ctrl-C to stop",
               file=sys.stderr, flush=True)
+        try:
+            threading.Event().wait()
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def _run_emulator_pair(args: argparse.Namespace, ids: list[int]) -> int:
+    """``plantsim emulator --lidar``: the servo and the URG sharing one turntable and one clock."""
+    import math
+
+    from plantsim.cli.app import resolve_config, scan_overrides
+    from plantsim.errors import ConfigError
+    from plantsim.hardware.urg.pair import EmulatorPair
+    from plantsim.rig.scene import build_scene
+    from plantsim.scan.pipeline import load_configured_plant
+
+    if len(ids) != 1:
+        raise ConfigError("--lidar emulates one turntable servo: give one --id")
+    config = resolve_config(args, scan_overrides(args))
+    ideal = config.ideal or config.sensor == "ideal"
+    if config.lidar.steps_per_rev != 1024:
+        raise ConfigError(f"the emulated LiDAR is a URG-04LX; [lidar] preset {config.lidar.name!r} is not: use "
+                          "urg-04lx-ug01")
+    plant = load_configured_plant(config)
+    scene = build_scene(config.rig, plant)
+    pair = EmulatorPair(scene, config.lidar, model=None if ideal else config.sensor_model, seed=config.seed,
+                        encoder_offset_rad=math.radians(config.rig.encoder_offset_deg), servo_model=args.model,
+                        dxl_id=ids[0], baud_bps=args.baud_bps, speed_factor=args.speed_factor,
+                        load_inertia=args.load_inertia)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    with pair:
+        print(f"servo: {pair.servo_port}", flush=True)
+        print(f"lidar: {pair.lidar_port}", flush=True)
+        print(f"{args.model} ID {ids[0]} at {args.baud_bps} bps and a URG-04LX ({'ideal' if ideal else 'realistic'} "
+              f"sensor) seeing {config.plant.mesh or config.plant.bundled} on its turntable; "
+              "Ctrl-C to stop", file=sys.stderr, flush=True)
         try:
             threading.Event().wait()
         except KeyboardInterrupt:

@@ -12,7 +12,12 @@ File layout: a sequence of frames, each
 The first frame's payload is the header, UTF-8 JSON: the scan's identity (the
 resolved configuration that determines the lines, and a hash of it), the number of
 lines and beams, and the wall-clock start. Every further frame is one
-:class:`JournalLine` (:meth:`JournalLine.to_bytes`). Each frame is written with one
+:class:`JournalLine` (:meth:`JournalLine.to_bytes`), or a chunk of turntable encoder
+readings (:func:`encode_encoder_chunk`: payload ``b"ENC2"`` | count (uint32 LE) | host
+clock before each read, the device's clock, host clock after (int64 ns) | angles (float64
+rad) | run (int32); continuous rig scans, whose table is read on its own clock: the
+readings' times are derived from these when the raw record is built). A line record's first 4 bytes are its index, never ``ENC2`` (that index
+would be above 800 million). Each frame is written with one
 ``write`` and then ``fsync``-ed. A crash can only tear the last frame; reading drops
 a torn tail (short, or failing its checksum) and logs it. A bad frame *followed by*
 a good one is damage, not a tear, and raises :class:`~plantsim.errors.JournalError`.
@@ -42,6 +47,52 @@ _FRAME = struct.Struct("<4sII")  # magic, payload length, crc32 of the payload
 # (ns since the scan's start), whether intensities follow.
 _LINE = struct.Struct("<IIdddqB")
 _MAX_PAYLOAD = 1 << 28  # a sanity bound on a frame's length field (256 MiB)
+ENCODER_MAGIC = b"ENC2"
+#: The fields of an encoder-readings record, each an array of one value per reading.
+ENCODER_FIELDS = (("sent_ns", "<i8"), ("device_ns", "<i8"), ("received_ns", "<i8"), ("angle_rad", "<f8"),
+                  ("run", "<i4"))
+
+
+def encode_encoder_chunk(readings: dict) -> bytes:
+    """The payload of an encoder-readings record.
+
+    Args:
+      readings: equal-length 1-D arrays: ``sent_ns`` and ``received_ns`` (the host
+        clock before and after the read, ns since the scan's start), ``device_ns``
+        (the device's own clock at the reading, ns, unwrapped; its epoch is the run's),
+        ``angle_rad`` (the reading) and ``run`` (which run of a resumed scan took it).
+    """
+    arrays = [np.ascontiguousarray(readings[name], dtype=dtype) for name, dtype in ENCODER_FIELDS]
+    n = len(arrays[0])
+    if any(a.shape != (n,) for a in arrays):
+        raise ValueError(f"encoder readings must be equal-length 1-D arrays, got {[a.shape for a in arrays]}")
+    return ENCODER_MAGIC + struct.pack("<I", n) + b"".join(a.tobytes() for a in arrays)
+
+
+def decode_encoder_chunk(payload: bytes) -> dict:
+    """The arrays of an encoder-readings record (see :func:`encode_encoder_chunk`).
+
+    Raises:
+      JournalError: the record's length does not match its count.
+    """
+    (n,) = struct.unpack_from("<I", payload, len(ENCODER_MAGIC))
+    offset = len(ENCODER_MAGIC) + 4
+    size = sum(np.dtype(dtype).itemsize for _, dtype in ENCODER_FIELDS)
+    if len(payload) != offset + size * n:
+        raise JournalError(f"an encoder record has {len(payload)} bytes, expected {offset + size * n} for "
+                           f"{n} readings")
+    out = {}
+    for name, dtype in ENCODER_FIELDS:
+        out[name] = np.frombuffer(payload, dtype=dtype, count=n, offset=offset).astype(np.dtype(dtype).newbyteorder("="))
+        offset += np.dtype(dtype).itemsize * n
+    return out
+
+
+def concat_encoder(chunks: list[dict]) -> dict:
+    """One dict of arrays from encoder chunks (empty arrays when there are none)."""
+    return {name: (np.concatenate([c[name] for c in chunks]) if chunks
+                   else np.empty(0, np.dtype(dtype).newbyteorder("=")))
+            for name, dtype in ENCODER_FIELDS}
 
 
 def identity_hash(identity: dict) -> str:
@@ -170,12 +221,15 @@ class JournalContents:
       lines: the complete line records, in order (``lines[i].index == i``).
       valid_length: bytes of valid frames; the file may hold a torn tail after it.
       torn_bytes: length of the torn tail that was dropped.
+      encoder: the encoder readings journaled (continuous rig scans; empty arrays
+        otherwise), in order: :func:`encode_encoder_chunk`'s arrays.
     """
 
     header: dict | None
     lines: list[JournalLine]
     valid_length: int
     torn_bytes: int
+    encoder: dict = dataclasses.field(default_factory=lambda: concat_encoder([]))
 
 
 def read_journal(path: str | os.PathLike) -> JournalContents:
@@ -203,8 +257,12 @@ def read_journal(path: str | os.PathLike) -> JournalContents:
         raise JournalError(f"{path}: unsupported journal version "
                            f"{header.get('plantsim_journal') if isinstance(header, dict) else header!r}, "
                            f"expected {FORMAT_VERSION}")
-    lines = []
-    for position, payload in enumerate(payloads[1:]):
+    lines, chunks = [], []
+    for payload in payloads[1:]:
+        if payload[:len(ENCODER_MAGIC)] == ENCODER_MAGIC:
+            chunks.append(decode_encoder_chunk(payload))
+            continue
+        position = len(lines)
         line = JournalLine.from_bytes(payload)
         if line.index != position:
             raise JournalError(f"{path}: record {position} holds line {line.index}; lines must be "
@@ -213,7 +271,8 @@ def read_journal(path: str | os.PathLike) -> JournalContents:
             raise JournalError(f"{path}: line {line.index} has {len(line.range_m)} beams, the header "
                                f"says {header.get('n_beams')}")
         lines.append(line)
-    return JournalContents(header=header, lines=lines, valid_length=valid, torn_bytes=torn)
+    return JournalContents(header=header, lines=lines, valid_length=valid, torn_bytes=torn,
+                           encoder=concat_encoder(chunks))
 
 
 def _differences(a, b, prefix: str = "") -> list[str]:
@@ -234,14 +293,16 @@ class Journal:
       header: its header.
       lines: the lines journaled so far (resumed and new), in order.
       lines_resumed: lines the journal held when it was opened.
+      encoder_chunks: the encoder readings journaled (resumed and new), in order.
     """
 
-    def __init__(self, path: Path, handle, header: dict, lines: list[JournalLine]):
+    def __init__(self, path: Path, handle, header: dict, lines: list[JournalLine], encoder: dict | None = None):
         self.path = path
         self._handle = handle
         self.header = header
         self.lines = lines
         self.lines_resumed = len(lines)
+        self.encoder_chunks: list[dict] = [encoder] if encoder is not None and len(encoder["angle_rad"]) else []
 
     @staticmethod
     def make_header(identity: dict, *, n_lines: int, n_beams: int, started_unix_s: float) -> dict:
@@ -308,7 +369,7 @@ class Journal:
             handle.truncate(contents.valid_length)
             os.fsync(handle.fileno())
         handle.seek(contents.valid_length)
-        return cls(path, handle, stored, list(contents.lines))
+        return cls(path, handle, stored, list(contents.lines), encoder=contents.encoder)
 
     def _write(self, payload: bytes) -> None:
         self._handle.write(encode_frame(payload))
@@ -325,6 +386,17 @@ class Journal:
             raise ValueError(f"line.index must be the next line, {len(self.lines)}, got {line.index}")
         self._write(line.to_bytes())
         self.lines.append(line)
+
+    def append_encoder(self, readings: dict) -> None:
+        """Appends encoder readings (:func:`encode_encoder_chunk`'s arrays) and fsyncs them."""
+        if not len(readings["angle_rad"]):
+            return
+        self._write(encode_encoder_chunk(readings))
+        self.encoder_chunks.append({name: np.asarray(readings[name]) for name, _ in ENCODER_FIELDS})
+
+    def encoder_readings(self) -> dict:
+        """All encoder readings journaled, as one dict of arrays."""
+        return concat_encoder(self.encoder_chunks)
 
     def close(self) -> None:
         if self._handle is not None and not self._handle.closed:

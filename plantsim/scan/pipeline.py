@@ -146,8 +146,14 @@ def _motion(config: RunConfig, plan: ScanPlan, dscene, grid: BeamGrid,
 
 def _describe_turntable(config: RunConfig, plan: ScanPlan, turntable=None) -> dict:
     if plan.motion == "hardware":
-        return {"motion": "hardware", **turntable.describe(),
-                "angle_mode": plan.angle_mode, "encoder": "the table's own (its reported angle)"}
+        out = {"motion": "hardware", **turntable.describe(),
+               "angle_mode": plan.angle_mode, "encoder": "the table's own (its reported angle)"}
+        if plan.mode == "continuous":
+            from plantsim.scan.continuous_rig import servo_rpm
+
+            out.update(mode="continuous", rpm_requested=config.turntable.rpm, rpm=servo_rpm(config.turntable.rpm),
+                       encoder="the servo's Present Position with its Realtime Tick, put on the host clock")
+        return out
     out = {"motion": plan.motion, "mode": plan.mode, "angle_mode": plan.angle_mode,
            "encoder": dataclasses.asdict(plan.encoder)}
     if plan.mode == "continuous":
@@ -163,7 +169,8 @@ def _describe_turntable(config: RunConfig, plan: ScanPlan, turntable=None) -> di
 
 
 def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "Turntable | None" = None,
-             resume: bool = False, settle_s: float = 0.0, progress: Progress | None = None) -> ScanResult:
+             resume: bool = False, settle_s: float = 0.0, progress: Progress | None = None,
+             lidar=None) -> ScanResult:
     """Runs the scan a configuration describes (no file is written).
 
     Args:
@@ -176,6 +183,10 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
       resume: (with ``turntable``) continue the journal beside the output.
       settle_s: (with ``turntable``) wait after each move, s.
       progress: called with (lines done, lines total).
+      lidar: (with ``turntable``) the real LiDAR as the line source
+        (:class:`plantsim.hardware.urg.source.UrgLineSource`) instead of the simulated
+        one; ``turntable.mode = "continuous"`` then turns the servo while it streams
+        (:mod:`plantsim.scan.continuous_rig`).
 
     Raises:
       ConfigError: a setting the chosen parts would not use (see :func:`plan_scan`).
@@ -183,7 +194,12 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
       ScanInterruptedError, JournalError: see :func:`plantsim.scan.session.run_session`.
     """
     _check_types(config, plant, turntable)
-    plan = plan_scan(config, hardware_turntable=turntable is not None)
+    if lidar is not None and turntable is None:
+        raise ValueError("a real LiDAR (lidar=...) scans on a real turntable: pass turntable= as well")
+    if lidar is not None and lidar.spec.name != config.lidar.name:
+        raise ValueError(f"the LiDAR was connected with preset {lidar.spec.name!r} but the configuration's is "
+                         f"{config.lidar.name!r}: connect it with preset=config.lidar")
+    plan = plan_scan(config, hardware_turntable=turntable is not None, real_lidar=lidar is not None)
     for note in plan.notes:
         log.warning("%s", note)
     timings = {}
@@ -206,10 +222,9 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
     else:
         scene = build_scene(config.rig, plant)  # kinematic: no physics, no plant inertia
     grid = BeamGrid.of(config.lidar)
-    source = SimulatedLidar(scene, config.lidar, grid.beam_angles_rad(),
-                            model=None if plan.sensor == "ideal" else config.sensor_model,
-                            backend=make_backend(scene, config.caster, nthread=config.threads),
-                            nthread=config.threads)
+    source = lidar if lidar is not None else SimulatedLidar(
+        scene, config.lidar, grid.beam_angles_rad(), model=None if plan.sensor == "ideal" else config.sensor_model,
+        backend=make_backend(scene, config.caster, nthread=config.threads), nthread=config.threads)
     timings["build_scene"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -231,22 +246,41 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
 
         output = check_output_path(config.output.path)  # fail before any move
         journal_path = journal_path_for(output)
-        raw, journal = run_session(turntable=turntable, source=source, grid=grid, schedule=config.scan,
-                                   seed=config.seed, journal_path=journal_path,
-                                   first_beam_s=float(config.lidar.beam_time_offsets_s()[0]),
-                                   identity=scan_identity(config, plant, turntable, source),
-                                   angle_mode=plan.angle_mode, resume=resume, settle_s=settle_s,
-                                   encoder_offset_rad=math.radians(config.rig.encoder_offset_deg),
-                                   progress=progress)
+        if plan.mode == "continuous":
+            from plantsim.scan.continuous_rig import run_continuous_session
+
+            raw, journal, timing = run_continuous_session(
+                turntable=turntable, source=source, grid=grid, rpm=config.turntable.rpm,
+                sweep_deg=config.scan.sweep_deg, journal_path=journal_path,
+                identity=scan_identity(config, plant, turntable, source), angle_mode=plan.angle_mode,
+                T_base_lidar=scene.T_base_lidar, resume=resume,
+                encoder_offset_rad=math.radians(config.rig.encoder_offset_deg), progress=progress)
+        else:
+            raw, journal = run_session(turntable=turntable, source=source, grid=grid, schedule=config.scan,
+                                       seed=config.seed, journal_path=journal_path,
+                                       first_beam_s=float(config.lidar.beam_time_offsets_s()[0]),
+                                       identity=scan_identity(config, plant, turntable, source),
+                                       angle_mode=plan.angle_mode, resume=resume, settle_s=settle_s,
+                                       encoder_offset_rad=math.radians(config.rig.encoder_offset_deg),
+                                       progress=progress, T_base_lidar=scene.T_base_lidar)
         lines_resumed = journal.lines_resumed
-        error = raw.encoder_angle_rad - raw.commanded_rad
-        diagnostics = {"max_reported_minus_commanded_rad": float(np.abs(error).max()) if len(error) else 0.0,
-                       "note": "reported minus commanded, per line; points use the reported angle"}
+        if plan.mode == "continuous":
+            diagnostics = {**timing, "encoder_readings_journaled": int(len(raw.encoder_stamp_ns)),
+                           "note": "servo readings (Realtime Tick + Present Position) interpolated to each beam"}
+        else:
+            error = raw.encoder_angle_rad - raw.commanded_rad
+            diagnostics = {"max_reported_minus_commanded_rad": float(np.abs(error).max()) if len(error) else 0.0,
+                           "note": "reported minus commanded, per line; points use the reported angle"}
     timings["scan"] = time.perf_counter() - t
 
     parts = {"plan": {**plan.to_dict(), "rig_fit_warnings": list(fit_warnings)},
              "schedule": _describe_schedule(config, plan, raw),
              "turntable": _describe_turntable(config, plan, turntable), "lidar": source.describe()}
+    if lidar is not None:
+        parts["real_parts"] = {"turntable": "the servo (its reported angles are the encoder log)",
+                               "lidar": f"a real {source.describe()['model']} (ranges, error codes, time stamps)",
+                               "simulated": "nothing; the plant mesh and rig geometry only place the "
+                                            "sidecar's frames"}
     return finish_scan(config, plan, plant, scene, raw, timings, parts=parts, diagnostics=diagnostics,
                        journal_path=journal_path, lines_resumed=lines_resumed)
 
@@ -394,7 +428,8 @@ def scan_identity(config: RunConfig, plant: PlantMesh, turntable, source) -> dic
     identity["plant"] = {k: v for k, v in identity["plant"].items() if k != "mesh"}
     identity["plant_geometry_sha256"] = digest.hexdigest()
     identity["rig_turntable"] = turntable.identity()
-    identity["line_source"] = {"kind": source.kind, "sensor": "ideal" if source.ideal else "realistic"}
+    identity["line_source"] = (source.identity() if source.kind == "urg" else
+                               {"kind": source.kind, "sensor": "ideal" if source.ideal else "realistic"})
     return identity
 
 

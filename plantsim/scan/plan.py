@@ -114,12 +114,13 @@ def _key_name(path: str) -> str:
     return f"[{section}] {key}" if section else key
 
 
-def plan_scan(config: RunConfig, *, hardware_turntable: bool = False) -> ScanPlan:
+def plan_scan(config: RunConfig, *, hardware_turntable: bool = False, real_lidar: bool = False) -> ScanPlan:
     """Decides the parts of a scan, refusing settings they would not use.
 
     Args:
       config: the resolved configuration.
       hardware_turntable: the table is a real (or emulated) servo, driven line by line.
+      real_lidar: (with ``hardware_turntable``) the lines come from the real URG LiDAR.
 
     Raises:
       ConfigError: one line naming the setting and what to change.
@@ -127,6 +128,8 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False) -> ScanPla
     tt = config.turntable
     mode = tt.mode
     notes: list[str] = []
+    if real_lidar:
+        return _plan_real_lidar(config)
 
     # --- the sensor ---------------------------------------------------------
     if config.ideal and given(config, "sensor") and config.sensor == "realistic":
@@ -198,7 +201,8 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False) -> ScanPla
                               f"turns the real servo (its own encoder, gains and timing): remove it")
         if mode == "continuous":
             raise ConfigError("continuous rig scans need a LiDAR that streams on its own clock (the real URG); "
-                              "the simulated LiDAR takes lines at rest: use --mode step")
+                              "the simulated LiDAR takes lines at rest: use --lidar urg --lidar-port PORT, "
+                              "or --mode step")
         angle_mode = "line" if tt.deskew else "commanded"
         return ScanPlan(mode=mode, sensor=sensor, motion="hardware", encoder=None, dynamics=None,
                         angle_mode=angle_mode, notes=tuple(notes))
@@ -246,3 +250,44 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False) -> ScanPla
         angle_mode = "interpolate" if tt.deskew else "commanded"
     return ScanPlan(mode=mode, sensor=sensor, motion=motion, encoder=encoder, dynamics=dynamics,
                     angle_mode=angle_mode, notes=tuple(notes))
+
+
+def _plan_real_lidar(config: RunConfig) -> ScanPlan:
+    """The plan of a rig scan whose lines come from the real URG: every setting of the
+    simulated sensor or turntable is refused (one line: what to remove)."""
+    tt = config.turntable
+    if config.ideal:
+        raise ConfigError("--ideal describes simulated parts; with --lidar urg both the servo and the LiDAR are "
+                          "real: remove --ideal")
+    if given(config, "sensor"):
+        raise ConfigError(f"--sensor {config.sensor} chooses the simulated LiDAR's model; with --lidar urg the "
+                          "ranges are the real sensor's: remove --sensor (or use --lidar sim)")
+    sensor_keys = sorted(k for k in config.explicit if k.startswith("sensor_model.") or k == "sensor_model"
+                         or k in {f"lidar.{f}" for f in REALISTIC_LIDAR_FIELDS})
+    if not sensor_keys and not config.explicit and config.sensor_model != _DEFAULT.sensor_model:
+        sensor_keys = ["sensor_model"]
+    if sensor_keys:
+        raise ConfigError(f"{_key_name(sensor_keys[0])} describes the simulated sensor model; a real URG "
+                          "measures for itself: remove it (or use --lidar sim)")
+    if config.output.plant_only:
+        raise ConfigError("--plant-only needs to know which points are on the plant; a real LiDAR does not "
+                          "know what it hit: remove --plant-only and crop the cloud afterwards")
+    physics_keys = _physics_settings(config)
+    encoder_keys = sorted(k for k in config.explicit if k.startswith("turntable.encoder."))
+    simulated_only = physics_keys + encoder_keys + [
+        k for k in ("turntable.physics", "turntable.ideal", "scan.step_time_s") if given(config, k)]
+    if simulated_only:
+        raise ConfigError(f"{_key_name(simulated_only[0])} describes the simulated turntable; a rig scan turns "
+                          "the real servo (its own encoder, gains and timing): remove it")
+    if tt.mode == "continuous":
+        if given(config, "scan.step_deg"):
+            raise ConfigError("--step-deg applies to step scans; a continuous scan's lines are rpm x scan period "
+                              "apart: set --rpm instead, or use --mode step")
+        angle_mode = "interpolate" if tt.deskew else "line"
+    else:
+        if given(config, "turntable.rpm"):
+            raise ConfigError("--rpm applies to continuous scans; a step scan moves by --step-deg: remove --rpm, "
+                              "or use --mode continuous")
+        angle_mode = "line" if tt.deskew else "commanded"
+    return ScanPlan(mode=tt.mode, sensor="urg", motion="hardware", encoder=None, dynamics=None,
+                    angle_mode=angle_mode, notes=())

@@ -142,11 +142,13 @@ def check_model(info: UrgInfo, spec: LidarSpec, *, port: str = "the port") -> No
     if first < info.amin:
         problems.append(f"AMIN={info.amin} (the preset's first beam is step {first})")
     if problems:
-        raise LidarModelError(
+        error = LidarModelError(
             f"the LiDAR on {port} is a {info.model or 'unknown model'} (PP: ARES={info.ares}, AMIN={info.amin}, "
             f"AMAX={info.amax}, AFRT={info.afrt}, DMIN={info.dmin_mm}, DMAX={info.dmax_mm}, SCAN={info.scan_rpm}), "
             f"but the preset {spec.name!r} expects otherwise: {', '.join(problems)}; choose the preset of this "
             "sensor ([lidar] preset / --lidar-preset) or connect the right one")
+        error.info = info  # what the sensor said, for a command to name the preset that fits
+        raise error
     if last > info.amax:
         _log.info("preset %s reads up to step %d, beyond AMAX=%d: those beams lie outside the sensor's "
                   "specified field of view", spec.name, last, info.amax)
