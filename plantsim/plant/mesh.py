@@ -303,15 +303,27 @@ def find_stem_base(vertices_up: np.ndarray, *, max_stem_diameter_m: float = 0.05
     dz = max(0.01 * h, 1e-3)
     link = 0.03 * h
     columns: list[list] = []  # [centre_xy, extent, n_slices, first_slice]
-    for k in range(int(0.25 * h / dz) + 1):
-        sel = vertices_up[(z >= z_min + k * dz) & (z < z_min + (k + 1) * dz), :2]
+    n_slices = int(0.25 * h / dz) + 1
+    # The vertices of the sliced band sorted by height once: each slice is then a run,
+    # found by bisection, instead of a pass over every vertex (0.23 s at 1 M faces).
+    in_band = np.flatnonzero(z < z_min + n_slices * dz)
+    by_z = in_band[np.argsort(z[in_band], kind="stable")]
+    z_sorted = z[by_z]
+    for k in range(n_slices):
+        lo, hi = np.searchsorted(z_sorted, [z_min + k * dz, z_min + (k + 1) * dz], side="left")
+        sel = vertices_up[by_z[lo:hi], :2]  # z_min + k dz <= z < z_min + (k + 1) dz
         if len(sel) < 3:
             continue
         # Single linkage on the occupied cells of a grid a quarter of the link wide (the
         # slices of a dense mesh hold thousands of vertices within one link of each other,
         # and all their pairs cost seconds); each vertex takes its cell's cluster.
         cell = 0.25 * link
-        cells, inverse = np.unique(np.floor(sel / cell).astype(np.int64), axis=0, return_inverse=True)
+        ij = np.floor(sel / cell).astype(np.int64)
+        ij_min = ij.min(axis=0)
+        span = int(ij[:, 1].max() - ij_min[1]) + 1
+        # One int64 key a cell, ordered as the (i, j) rows: np.unique(axis=0)'s cells, faster.
+        keys, inverse = np.unique((ij[:, 0] - ij_min[0]) * span + (ij[:, 1] - ij_min[1]), return_inverse=True)
+        cells = np.stack([keys // span + ij_min[0], keys % span + ij_min[1]], axis=1)
         lab = _linked_components((cells + 0.5) * cell, link)[inverse.reshape(-1)]
         for c in range(lab.max() + 1):
             xy = sel[lab == c]
