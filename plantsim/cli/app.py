@@ -312,17 +312,18 @@ def _command_of(argv: list[str]) -> str | None:
     return next((arg for arg in argv if not arg.startswith("-")), None)
 
 
-def _lean_scan_process() -> None:
+def _lean_scan_process(*, draws: bool = False) -> None:
     """Keeps a scan's process from loading what a scan never uses (the command line only).
 
     On import MuJoCo probes for an OpenGL library for ``mujoco.Renderer`` (with GLFW by
     starting a second Python process, ~40 ms) and laspy imports ``requests`` (~70 ms) to
     read COPC files over HTTP. A scan neither draws nor downloads: MuJoCo is imported with
     ``MUJOCO_GL=disable`` (the variable is set for that import only; a user's own setting
-    is left alone) and ``requests`` is marked absent, which laspy handles as an optional
-    dependency. Called before anything imports either.
+    is left alone) unless it will draw (``draws``: an evaluated scan's error picture), and
+    ``requests`` is marked absent, which laspy handles as an optional dependency. Called
+    before anything imports either.
     """
-    if "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ:
+    if not draws and "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ:
         os.environ["MUJOCO_GL"] = "disable"
         try:
             import mujoco  # noqa: F401
@@ -339,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser(only_scan=scan_only)
     args = parser.parse_args(argv)
     if scan_only and own_process:  # a caller's process (tests, scripts) is left as it is
-        _lean_scan_process()
+        _lean_scan_process(draws=bool(_opt(args, "evaluate")))
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="plantsim: %(levelname)s: %(message)s")
     try:
