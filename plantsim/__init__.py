@@ -18,12 +18,10 @@ knows -> cloud. The public surface, in one place::
     raw, info = plantsim.read_raw("scan_raw")            # any bag with the same conventions
     cloud = plantsim.reconstruct(raw)
 
-Names whose modules pull in heavier dependencies (scipy's spatial code,
-matplotlib, rosbags, the hardware drivers) load on first use.
+Every name loads its module on first use: ``import plantsim`` costs nothing, and
+a scan pays only for the parts it runs.
 """
 
-from plantsim.cloud.export import CLASSIFICATION, EXPORTERS, read_cloud, write_cloud
-from plantsim.cloud.reconstruct import PointCloud, reconstruct
 from plantsim.errors import (
     ConfigError,
     HardwareError,
@@ -38,78 +36,54 @@ from plantsim.errors import (
     Terminated,
     UnsafeStopError,
 )
-from plantsim.plant.mesh import PlantMesh, load_plant, plant_from_arrays
-from plantsim.plant.procedural import (
-    PART_EAR,
-    PART_LEAF,
-    PART_STEM,
-    MaizeParams,
-    ProceduralPlant,
-    WheatParams,
-    make_maize,
-    make_wheat,
-)
-from plantsim.resources import bundled_plant_path
-from plantsim.rig.geometry import RigGeometry
-from plantsim.rig.scene import HitClass, Scene, build_scene
-from plantsim.scan.config import OutputOptions, PlantOptions, RunConfig, config_from_dict, load_toml
-from plantsim.scan.pipeline import ScanResult, run_scan, simulated_rig_time_s, with_evaluation, write_result
-from plantsim.scan.plan import ScanPlan, plan_scan
-from plantsim.scan.raw import ANGLE_MODES, BeamGrid, RawScan
-from plantsim.scan.schedule import StepScan
-from plantsim.sensor.casting import Caster, MujocoBackend
-from plantsim.sensor.lidar import SimulatedLidar
-from plantsim.sensor.model import SensorModel
-from plantsim.sensor.spec import PRESETS, URG_04LX_UG01, BeamStatus, LidarSpec, lidar_preset
-from plantsim.transforms import apply_T, invert_T, make_T
-from plantsim.turntable.dynamics import JitterConfig, TurntableDynamics
-from plantsim.turntable.encoder import EncoderConfig
-from plantsim.turntable.options import TurntableOptions
-from plantsim.turntable.servo import ServoConfig
-from plantsim.turntable.table import SimulatedTurntable, Turntable
 
 __version__ = "0.2.0"
 
-# Loaded on first use, so that a plain scan does not pay for them.
-_LAZY = {
-    "ServoTurntable": "plantsim.hardware.dynamixel.turntable",
-    "read_raw": "plantsim.cloud.bag",
-    "write_raw": "plantsim.cloud.bag",
-    "Evaluation": "plantsim.evaluation.evaluate",
-    "EvaluationOptions": "plantsim.evaluation.evaluate",
-    "evaluate_scan": "plantsim.evaluation.evaluate",
-    "cloud_mesh_metrics": "plantsim.evaluation.metrics",
-    "extract_traits": "plantsim.evaluation.traits",
-    "traits_from_mesh": "plantsim.evaluation.traits",
-    "Sweep": "plantsim.evaluation.study",
-    "run_study": "plantsim.evaluation.study",
-    "pareto_front": "plantsim.evaluation.study",
-    "calibrate": "plantsim.cloud.calibration",
-    "Calibration": "plantsim.cloud.calibration",
-    "CalibrationTarget": "plantsim.plant.target",
-    "CALIBRATION_TARGET": "plantsim.plant.target",
-    "fit_sensor": "plantsim.sensor.fit",
-    "FlatTargetRecording": "plantsim.sensor.fit",
-    "SensorFit": "plantsim.sensor.fit",
-    "FlatTarget": "plantsim.sensor.flat_target",
-    "simulate_flat_target": "plantsim.sensor.flat_target",
-    "SafeStop": "plantsim.hardware.safety",
-    "StopAction": "plantsim.hardware.safety",
-    "SafeStopReport": "plantsim.hardware.safety",
-    "ServoStatus": "plantsim.hardware.dynamixel.turntable",
-    "render_scene": "plantsim.cloud.render",
-    "render_cloud": "plantsim.cloud.render",
-    "error_picture": "plantsim.cloud.render",
-    "View": "plantsim.cloud.render",
-    "RenderError": "plantsim.cloud.render",
-    "dask_executor": "plantsim.evaluation.study",
-    "SettingTypeError": "plantsim.validation",
-    "MissingExtraError": "plantsim.validation",
-    "DynamicsDiagnostics": "plantsim.turntable.dynamics",
-    "angle_error_displacement": "plantsim.evaluation.angle_error",
-    "UrgLidar": "plantsim.hardware.urg",
-    "UrgEmulator": "plantsim.hardware.urg",
+# Every name loads its module on first use, so that ``import plantsim`` and the command line
+# pay only for what a run uses: a scan loads neither the procedural plants nor the evaluation,
+# the hardware drivers, rosbags or matplotlib, and a command that never draws can keep MuJoCo
+# from probing for OpenGL (plantsim.cli.app). The module of each name:
+_LAZY_MODULES = {
+    "plantsim.cloud.export": "CLASSIFICATION EXPORTERS read_cloud write_cloud",
+    "plantsim.cloud.reconstruct": "PointCloud reconstruct",
+    "plantsim.plant.mesh": "PlantMesh load_plant plant_from_arrays",
+    "plantsim.plant.procedural": ("PART_EAR PART_LEAF PART_STEM MaizeParams ProceduralPlant WheatParams make_maize "
+                                  "make_wheat"),
+    "plantsim.resources": "bundled_plant_path",
+    "plantsim.rig.geometry": "RigGeometry",
+    "plantsim.rig.scene": "HitClass Scene build_scene",
+    "plantsim.scan.config": "OutputOptions PlantOptions RunConfig config_from_dict load_toml",
+    "plantsim.scan.pipeline": "ScanResult run_scan simulated_rig_time_s with_evaluation write_result",
+    "plantsim.scan.plan": "ScanPlan plan_scan",
+    "plantsim.scan.raw": "ANGLE_MODES BeamGrid RawScan",
+    "plantsim.scan.schedule": "StepScan",
+    "plantsim.sensor.casting": "Caster MujocoBackend",
+    "plantsim.sensor.lidar": "SimulatedLidar",
+    "plantsim.sensor.model": "SensorModel",
+    "plantsim.sensor.spec": "PRESETS URG_04LX_UG01 BeamStatus LidarSpec lidar_preset",
+    "plantsim.transforms": "apply_T invert_T make_T",
+    "plantsim.turntable.dynamics": "JitterConfig TurntableDynamics DynamicsDiagnostics",
+    "plantsim.turntable.encoder": "EncoderConfig",
+    "plantsim.turntable.options": "TurntableOptions",
+    "plantsim.turntable.servo": "ServoConfig",
+    "plantsim.turntable.table": "SimulatedTurntable Turntable",
+    "plantsim.hardware.dynamixel.turntable": "ServoTurntable ServoStatus",
+    "plantsim.cloud.bag": "read_raw write_raw",
+    "plantsim.evaluation.evaluate": "Evaluation EvaluationOptions evaluate_scan",
+    "plantsim.evaluation.metrics": "cloud_mesh_metrics",
+    "plantsim.evaluation.traits": "extract_traits traits_from_mesh",
+    "plantsim.evaluation.study": "Sweep run_study pareto_front dask_executor",
+    "plantsim.cloud.calibration": "calibrate Calibration",
+    "plantsim.plant.target": "CalibrationTarget CALIBRATION_TARGET",
+    "plantsim.sensor.fit": "fit_sensor FlatTargetRecording SensorFit",
+    "plantsim.sensor.flat_target": "FlatTarget simulate_flat_target",
+    "plantsim.hardware.safety": "SafeStop StopAction SafeStopReport",
+    "plantsim.cloud.render": "render_scene render_cloud error_picture View RenderError",
+    "plantsim.validation": "SettingTypeError MissingExtraError",
+    "plantsim.evaluation.angle_error": "angle_error_displacement",
+    "plantsim.hardware.urg": "UrgLidar UrgEmulator",
 }
+_LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names.split()}
 
 __all__ = [
     # scanning
@@ -153,7 +127,9 @@ def __getattr__(name: str):
     if name in _LAZY:
         import importlib
 
-        return getattr(importlib.import_module(_LAZY[name]), name)
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value  # the next look-up is a plain attribute
+        return value
     raise AttributeError(f"module 'plantsim' has no attribute {name!r}")
 
 

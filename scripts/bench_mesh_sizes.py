@@ -12,14 +12,17 @@ scan run in this process:
 - read: the file to (3 n_faces, 3) vertex rows;
 - dedup: vertex de-duplication (``plantsim.plant.mesh.unique_rows``), next to
   ``np.unique(axis=0)`` (what it replaced; the two must give identical output);
+- place: the stem-base search of the placement (``find_stem_base``);
 - load_plant: read + dedup + checks + placement, as a scan pays it;
-- scene: ``build_scene`` for a kinematic scan (token plant inertia), next to the
-  same scene with the plant's real shell inertia (what only physics needs);
+- scene: ``build_scene`` for a kinematic scan (token plant inertia), split into the
+  MjSpec with the plant mesh and MuJoCo's compile of it, next to the same scene with
+  the plant's real shell inertia (what only physics needs);
 - caster set-up and the scan itself, with MuJoCo and with Embree;
 - reconstruct and encode a PLY;
 
-and then the wall time of the whole ``plantsim scan MESH --ideal -o x.ply``
-process, with a least-squares fit ``whole = a + b * faces`` over the sizes
+and then the whole ``plantsim scan MESH --ideal -o x.ply`` process: its own phases
+(the sidecar's ``timings_s``, last run), its CPU time (user + system) and its wall
+time, with a least-squares fit ``whole = a + b * faces`` over the sizes
 (the issue's target: a 1M-face mesh in <= 3 s). Load averages are printed:
 the figures mean little on a busy machine.
 """
@@ -27,6 +30,7 @@ the figures mean little on a busy machine.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -39,9 +43,9 @@ import numpy as np
 
 from plantsim.cloud.export import encode_cloud
 from plantsim.cloud.reconstruct import reconstruct
-from plantsim.plant.mesh import _read_arrays, load_plant, unique_rows
+from plantsim.plant.mesh import _read_arrays, find_stem_base, load_plant, unique_rows
 from plantsim.rig.geometry import RigGeometry
-from plantsim.rig.scene import build_scene
+from plantsim.rig.scene import build_scene, build_spec
 from plantsim.scan.pipeline import step_and_shoot
 from plantsim.scan.raw import BeamGrid
 from plantsim.scan.schedule import StepScan
@@ -122,7 +126,13 @@ def main() -> None:
                 lambda: np.unique(vertices, axis=0, return_inverse=True), args.runs)
             same = np.array_equal(u_new, u_old) and np.array_equal(i_new, i_old.reshape(-1))
             t["load_plant"], plant = median_time(lambda: load_plant(path), args.runs)
+            t["place (stem base)"], _ = median_time(lambda: find_stem_base(plant.vertices_turntable), args.runs)
             t["scene"], scene = median_time(lambda: build_scene(rig, plant), args.runs)
+            t["scene: MjSpec"], spec = median_time(
+                lambda: build_spec(rig, plant, plant_areal_density_kg_m2=None), args.runs)
+            t["scene: MuJoCo compile"], _ = median_time(lambda: build_spec(
+                rig, plant, plant_areal_density_kg_m2=None).compile(), args.runs)
+            t["scene: MuJoCo compile"] -= t["scene: MjSpec"]
             t["scene with inertia"], _ = median_time(
                 lambda: build_scene(rig, plant, plant_areal_density_kg_m2=0.3), args.runs)
             t["caster set-up mujoco"], _ = median_time(lambda: MujocoBackend(scene), args.runs)
@@ -134,15 +144,26 @@ def main() -> None:
                     lambda: step_and_shoot(scene, lidar, schedule, caster="embree"), args.runs)
                 assert np.array_equal(raw.geom_id, raw_e.geom_id), "Embree and MuJoCo disagree"
             t["reconstruct"], cloud = median_time(lambda: reconstruct(raw), args.runs)
-            t["encode ply"], _ = median_time(lambda: encode_cloud("x.ply", cloud), args.runs)
+            t["encode ply"], data = median_time(lambda: encode_cloud("x.ply", cloud), args.runs)
+            t["write ply"], _ = median_time(lambda: (Path(tmp) / "cloud.ply").write_bytes(data), args.runs)
             del vertices, u_new, i_new, u_old, i_old
-            walls = []
+            walls, cpus = [], []
             out = Path(tmp) / "x.ply"
             for _ in range(args.process_runs):
                 start = time.perf_counter()
-                subprocess.run([sys.executable, "-m", "plantsim", "scan", str(path), "--up", "z", "--ideal",
-                                "--step-deg", str(args.step_deg), "-o", str(out)], check=True, capture_output=True)
+                proc = subprocess.Popen([sys.executable, "-m", "plantsim", "scan", str(path), "--up", "z", "--ideal",
+                                         "--step-deg", str(args.step_deg), "-o", str(out)],
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                _, status, usage = os.wait4(proc.pid, 0)
+                proc.returncode = os.waitstatus_to_exitcode(status)
+                if proc.returncode:
+                    sys.exit(f"bench_mesh_sizes: plantsim scan {path} failed ({proc.returncode})")
                 walls.append(time.perf_counter() - start)
+                cpus.append(usage.ru_utime + usage.ru_stime)
+            sidecar = json.loads(out.with_name(out.name + ".json").read_text())
+            for name, value in sidecar["timings_s"].items():
+                t[f"process: {name}"] = value
+            t["WHOLE PROCESS (CPU)"] = statistics.median(cpus)
             t["WHOLE PROCESS (wall)"] = statistics.median(walls)
             n_faces = len(plant.faces)
             table.append((n_faces, t))

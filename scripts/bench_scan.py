@@ -52,7 +52,9 @@ def main() -> None:
     lidar, rig, schedule = URG_04LX_UG01, RigGeometry(), StepScan(step_deg=args.step_deg)
     n_rays = schedule.n_lines * lidar.n_beams
     print(f"mesh {args.mesh}, {schedule.n_lines} lines x {lidar.n_beams} beams = {n_rays:,} rays, "
-          f"{os.cpu_count()} cores, median of {args.runs} runs")
+          f"{os.cpu_count()} cores, median of {args.runs} runs; load average {os.getloadavg()[0]:.2f} "
+          f"(a shared machine: read the ratios, measured under the same load; scripts/bench_peers.py "
+          f"alternates the processes and adds MuJoCo-LiDAR)")
 
     phases = {}
     phases["load_mesh"], plant = median_time(lambda: load_plant(args.mesh, units=args.units, up=args.up), args.runs)
@@ -128,6 +130,7 @@ def main() -> None:
         print(f"whole `{label}` process: median {wall:.3f} s (min {min(walls):.3f}, max {max(walls):.3f}); "
               f"{wall / bare['typical']:.2f}x the typical bare MuJoCo process{' (target <= 0.8x)' if extra else ''}, "
               f"{wall / bare['lean']:.2f}x the lean one; vs the original tool's ~40 min: {40 * 60 / wall:,.0f}x faster")
+    print(f"load average at the end {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 
@@ -253,7 +254,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(*, only_scan: bool = False) -> argparse.ArgumentParser:
+    """The ``plantsim`` parser; ``only_scan`` leaves out every command but ``scan`` (their modules
+    load the hardware drivers and the sensor fit, which a scan never uses)."""
     parser = argparse.ArgumentParser(
         prog="plantsim", description="Simulate a 2D-LiDAR + turntable plant scanner.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress details")
@@ -284,6 +287,8 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--no-pictures", action="store_true",
                       help="with --evaluate: do not draw OUT.error.png")
     scan.set_defaults(func=cmd_scan)
+    if only_scan:
+        return parser
 
     reconstruct = sub.add_parser(
         "reconstruct", help="rebuild a point cloud from a raw scan (ROS 2 bag)",
@@ -331,9 +336,40 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _command_of(argv: list[str]) -> str | None:
+    """The command named on a command line (the first word that is not an option), or None."""
+    return next((arg for arg in argv if not arg.startswith("-")), None)
+
+
+def _lean_scan_process(*, draws: bool = False) -> None:
+    """Keeps a scan's process from loading what a scan never uses (the command line only).
+
+    On import MuJoCo probes for an OpenGL library for ``mujoco.Renderer`` (with GLFW by
+    starting a second Python process, ~40 ms) and laspy imports ``requests`` (~70 ms) to
+    read COPC files over HTTP. A scan neither draws nor downloads: MuJoCo is imported with
+    ``MUJOCO_GL=disable`` (the variable is set for that import only; a user's own setting
+    is left alone) unless it will draw (``draws``: an evaluated scan's error picture), and
+    ``requests`` is marked absent, which laspy handles as an optional dependency. Called
+    before anything imports either.
+    """
+    if not draws and "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ:
+        os.environ["MUJOCO_GL"] = "disable"
+        try:
+            import mujoco  # noqa: F401
+        finally:
+            del os.environ["MUJOCO_GL"]
+    sys.modules.setdefault("requests", None)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    """Runs a command line (``argv``, default the process's own: ``plantsim ...``)."""
+    own_process = argv is None
+    argv = sys.argv[1:] if own_process else list(argv)
+    scan_only = _command_of(argv) == "scan"
+    parser = build_parser(only_scan=scan_only)
     args = parser.parse_args(argv)
+    if scan_only and own_process:  # a caller's process (tests, scripts) is left as it is
+        _lean_scan_process(draws=bool(_opt(args, "evaluate")))
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="plantsim: %(levelname)s: %(message)s")
     try:

@@ -140,24 +140,57 @@ def _read_arrays(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return vertices, faces
 
 
+def _ordered_bits(values_f32: np.ndarray) -> np.ndarray:
+    """uint32 keys that sort as the float32 values do (-0.0 and +0.0 get one key; no NaN)."""
+    bits = (values_f32 + np.float32(0.0)).view(np.uint32)  # -0.0 + 0.0 is +0.0
+    return np.where(bits >> np.uint32(31), ~bits, bits | np.uint32(0x80000000))
+
+
 def unique_rows(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows of an (n, 3) array, in lexicographic order, and each row's index among them.
 
-    What ``np.unique(vertices, axis=0, return_inverse=True)`` gives, about four times
-    faster: one ``lexsort`` of the three columns instead of a sort of structured rows
-    (0.19 s against 0.05 s for the 210k vertices of a 70k-face STL).
+    What ``np.unique(vertices, axis=0, return_inverse=True)`` gives, faster. Rows that
+    float32 holds exactly (every STL) are sorted on integer keys that order as the
+    floats do: one ``argsort`` of (x, y) packed in 64 bits, then a stable one of (rank
+    of (x, y), z) packed likewise, which the first left nearly in order (0.28 s against
+    0.71 s for a lexsort, and 3.9 s for ``np.unique``, on the 3 M vertex rows of a 1 M-face
+    STL). Other rows take one ``lexsort`` of the three columns. Equal rows that differ
+    only in the sign of a zero are one row, as ``np.unique`` has them, represented by
+    the first of them in ``vertices``.
 
     Returns:
       unique (k, 3) float64, inverse (n,) int64 with ``unique[inverse] == vertices``.
     """
-    order = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
-    ordered = vertices[order]
-    new = np.empty(len(ordered), dtype=bool)
-    new[:1] = True
-    new[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
-    inverse = np.empty(len(ordered), dtype=np.int64)
+    vertices = np.asarray(vertices, dtype=np.float64)
+    if len(vertices) == 0:
+        return vertices.reshape(0, 3), np.zeros(0, dtype=np.int64)
+    as_f32 = vertices.astype(np.float32)
+    if np.array_equal(as_f32, vertices):
+        key_x, key_y, key_z = (_ordered_bits(as_f32[:, i]) for i in range(3))
+        xy = (key_x.astype(np.uint64) << np.uint64(32)) | key_y
+        by_xy = np.argsort(xy)
+        xy_sorted = xy[by_xy]
+        key = np.empty(len(xy), dtype=np.uint64)  # rank of (x, y), then z: a row's place in full
+        key[0] = 0
+        np.cumsum(xy_sorted[1:] != xy_sorted[:-1], out=key[1:])
+        key <<= np.uint64(32)
+        key |= key_z[by_xy]
+        refine = np.argsort(key, kind="stable")
+        order = by_xy[refine]
+        ordered = key[refine]
+    else:
+        order = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
+        ordered = vertices[order]
+    new = np.empty(len(order), dtype=bool)
+    new[0] = True
+    if ordered.ndim == 1:
+        np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    else:
+        new[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
+    first = np.minimum.reduceat(order, np.flatnonzero(new))  # each row's first occurrence
+    inverse = np.empty(len(order), dtype=np.int64)
     inverse[order] = np.cumsum(new) - 1
-    return ordered[new], inverse
+    return vertices[first], inverse
 
 
 def clean_arrays(vertices: np.ndarray, faces: np.ndarray, *, source: str = "<memory>"
@@ -270,15 +303,27 @@ def find_stem_base(vertices_up: np.ndarray, *, max_stem_diameter_m: float = 0.05
     dz = max(0.01 * h, 1e-3)
     link = 0.03 * h
     columns: list[list] = []  # [centre_xy, extent, n_slices, first_slice]
-    for k in range(int(0.25 * h / dz) + 1):
-        sel = vertices_up[(z >= z_min + k * dz) & (z < z_min + (k + 1) * dz), :2]
+    n_slices = int(0.25 * h / dz) + 1
+    # The vertices of the sliced band sorted by height once: each slice is then a run,
+    # found by bisection, instead of a pass over every vertex (0.23 s at 1 M faces).
+    in_band = np.flatnonzero(z < z_min + n_slices * dz)
+    by_z = in_band[np.argsort(z[in_band], kind="stable")]
+    z_sorted = z[by_z]
+    for k in range(n_slices):
+        lo, hi = np.searchsorted(z_sorted, [z_min + k * dz, z_min + (k + 1) * dz], side="left")
+        sel = vertices_up[by_z[lo:hi], :2]  # z_min + k dz <= z < z_min + (k + 1) dz
         if len(sel) < 3:
             continue
         # Single linkage on the occupied cells of a grid a quarter of the link wide (the
         # slices of a dense mesh hold thousands of vertices within one link of each other,
         # and all their pairs cost seconds); each vertex takes its cell's cluster.
         cell = 0.25 * link
-        cells, inverse = np.unique(np.floor(sel / cell).astype(np.int64), axis=0, return_inverse=True)
+        ij = np.floor(sel / cell).astype(np.int64)
+        ij_min = ij.min(axis=0)
+        span = int(ij[:, 1].max() - ij_min[1]) + 1
+        # One int64 key a cell, ordered as the (i, j) rows: np.unique(axis=0)'s cells, faster.
+        keys, inverse = np.unique((ij[:, 0] - ij_min[0]) * span + (ij[:, 1] - ij_min[1]), return_inverse=True)
+        cells = np.stack([keys // span + ij_min[0], keys % span + ij_min[1]], axis=1)
         lab = _linked_components((cells + 0.5) * cell, link)[inverse.reshape(-1)]
         for c in range(lab.max() + 1):
             xy = sel[lab == c]

