@@ -53,7 +53,7 @@ _LAZY_MODULES = {
     "plantsim.rig.geometry": "RigGeometry",
     "plantsim.rig.scene": "HitClass Scene build_scene",
     "plantsim.scan.config": "OutputOptions PlantOptions RunConfig config_from_dict load_toml",
-    "plantsim.scan.pipeline": "ScanResult run_scan simulated_rig_time_s with_evaluation write_result",
+    "plantsim.scan.pipeline": "ScanResult run_scan simulated_rig_time_s with_evaluation write_result performance",
     "plantsim.scan.plan": "ScanPlan plan_scan",
     "plantsim.scan.raw": "ANGLE_MODES BeamGrid RawScan",
     "plantsim.scan.schedule": "StepScan",
@@ -69,7 +69,7 @@ _LAZY_MODULES = {
     "plantsim.turntable.table": "SimulatedTurntable Turntable",
     "plantsim.hardware.dynamixel.turntable": "ServoTurntable ServoStatus",
     "plantsim.cloud.bag": "read_raw write_raw",
-    "plantsim.evaluation.evaluate": "Evaluation EvaluationOptions evaluate_scan",
+    "plantsim.evaluation.evaluate": "Evaluation EvaluationOptions evaluate_scan evaluation_threads",
     "plantsim.evaluation.metrics": "cloud_mesh_metrics",
     "plantsim.evaluation.traits": "extract_traits traits_from_mesh",
     "plantsim.evaluation.study": "Sweep run_study pareto_front dask_executor",
@@ -78,10 +78,12 @@ _LAZY_MODULES = {
     "plantsim.sensor.fit": "fit_sensor FlatTargetRecording SensorFit",
     "plantsim.sensor.flat_target": "FlatTarget simulate_flat_target",
     "plantsim.hardware.safety": "SafeStop StopAction SafeStopReport",
-    "plantsim.cloud.render": "render_scene render_cloud error_picture View RenderError",
+    "plantsim.cloud.render": "render_scene render_cloud error_picture error_picture_of ErrorPicture View RenderError",
     "plantsim.validation": "SettingTypeError MissingExtraError",
     "plantsim.evaluation.angle_error": "angle_error_displacement",
     "plantsim.hardware.urg": "UrgLidar UrgEmulator",
+    "plantsim.hardware.urg.source": "UrgLineSource",
+    "plantsim.hardware.urg.pair": "EmulatorPair",
 }
 _LAZY = {name: module for module, names in _LAZY_MODULES.items() for name in names.split()}
 
@@ -90,7 +92,7 @@ __all__ = [
     "RunConfig", "PlantOptions", "OutputOptions", "StepScan", "TurntableOptions", "TurntableDynamics",
     "JitterConfig", "EncoderConfig", "ServoConfig", "SensorModel", "LidarSpec", "PRESETS", "URG_04LX_UG01",
     "lidar_preset", "RigGeometry", "config_from_dict", "load_toml", "plan_scan", "ScanPlan", "run_scan",
-    "ScanResult", "write_result", "with_evaluation", "simulated_rig_time_s",
+    "ScanResult", "write_result", "with_evaluation", "simulated_rig_time_s", "performance",
     # parts
     "load_plant", "plant_from_arrays", "PlantMesh", "bundled_plant_path", "build_scene", "Scene", "HitClass",
     "SimulatedLidar", "Caster", "MujocoBackend", "BeamStatus", "Turntable", "SimulatedTurntable",
@@ -101,9 +103,9 @@ __all__ = [
     # what the turntable did
     "DynamicsDiagnostics", "angle_error_displacement",
     # pictures
-    "render_scene", "render_cloud", "error_picture", "View", "RenderError",
+    "render_scene", "render_cloud", "error_picture", "error_picture_of", "ErrorPicture", "View", "RenderError",
     # the real LiDAR
-    "UrgLidar", "UrgEmulator",
+    "UrgLidar", "UrgEmulator", "UrgLineSource", "EmulatorPair",
     # calibration and the sensor fit
     "calibrate", "Calibration", "CalibrationTarget", "CALIBRATION_TARGET", "fit_sensor", "FlatTargetRecording",
     "SensorFit", "FlatTarget", "simulate_flat_target",
@@ -111,7 +113,7 @@ __all__ = [
     "make_maize", "make_wheat", "MaizeParams", "WheatParams", "ProceduralPlant", "PART_STEM", "PART_LEAF",
     "PART_EAR",
     # evaluation
-    "Evaluation", "EvaluationOptions", "evaluate_scan", "cloud_mesh_metrics", "extract_traits",
+    "Evaluation", "EvaluationOptions", "evaluate_scan", "evaluation_threads", "cloud_mesh_metrics", "extract_traits",
     "traits_from_mesh", "Sweep", "run_study", "pareto_front", "dask_executor", "SettingTypeError",
     "MissingExtraError",
     # transforms
