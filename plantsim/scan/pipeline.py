@@ -509,7 +509,7 @@ def performance(timings_s: dict, work: dict) -> dict:
     rays = work["turning_cast"]["rays"]
     out = dict(work)
     if scan_s > 0:
-        out["scan_phase"] = {"s": round(scan_s, 6), "beams_per_s": round(work["beams"] / scan_s),
+        out["scan_phase"] = {"s": scan_s, "beams_per_s": round(work["beams"] / scan_s),
                              "rays_per_s": round(rays / scan_s)}
     return out
 

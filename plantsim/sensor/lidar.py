@@ -157,7 +157,7 @@ class SimulatedLidar:
         other_s = max(self.lines_s - c.cast_turning_s - self.sensor_model_s, 0.0)
 
         def phase(rays, seconds):
-            out = {"rays": int(rays), "s": round(seconds, 6)}
+            out = {"rays": int(rays), "s": seconds}
             if rays and seconds > 0:
                 out["rays_per_s"] = round(rays / seconds)
             return out
@@ -165,8 +165,8 @@ class SimulatedLidar:
         return {"beams": int(self.n_beams_taken),
                 "rig_cast_once": phase(c.n_rays_fixed, c.cast_fixed_s),
                 "turning_cast": phase(c.n_rays_cast, c.cast_turning_s),
-                "sensor_model": {"s": round(self.sensor_model_s, 6)},
-                "footprint_and_bookkeeping": {"s": round(other_s, 6)}}
+                "sensor_model": {"s": self.sensor_model_s},
+                "footprint_and_bookkeeping": {"s": other_s}}
 
     def cast_lines(self, table_rad: np.ndarray, rng: np.random.Generator, *,
                    beam_time_s: np.ndarray | None = None, progress: Progress | None = None) -> Lines:
