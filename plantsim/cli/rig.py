@@ -336,6 +336,11 @@ def _run_emulator_pair(args: argparse.Namespace, ids: list[int]) -> int:
         print(f"{args.model} ID {ids[0]} at {args.baud_bps} bps and a URG-04LX ({'ideal' if ideal else 'realistic'} "
               f"sensor) seeing {config.plant.mesh or config.plant.bundled} on its turntable; "
               "Ctrl-C to stop", file=sys.stderr, flush=True)
+        if args.speed_factor > 1:
+            print(f"plantsim: note: at --speed-factor {args.speed_factor:g} the LiDAR streams "
+                  f"{10 * args.speed_factor:g} scans per wall second, each cast as it is sent; a continuous rig "
+                  "scan may find the stream stalled on a busy machine (step scans are fine): use "
+                  "--speed-factor 1 for continuous scans", file=sys.stderr, flush=True)
         try:
             threading.Event().wait()
         except KeyboardInterrupt:
