@@ -86,9 +86,13 @@ def cmd_scan(args: argparse.Namespace) -> int:
     config = resolve_config(args, scan_overrides(args))
     check_outputs(config, config_path=args.config)  # Fail before any work, not after it.
     plan_scan(config)
+    plant = None
+    if _opt(args, "fit_rig"):
+        config, plant, why = fit_rig_to_plant(config)
+        print(f"--fit-rig: {why}")
     progress, close = _progress_bar("scan")
     try:
-        result = run_scan(config, progress=progress)
+        result = run_scan(config, plant=plant, progress=progress)
     finally:
         close()
     check_plant_seen(result)
@@ -107,6 +111,22 @@ def cmd_scan(args: argparse.Namespace) -> int:
         if not _opt(args, "no_pictures"):
             print(_error_picture_line(result, f"{path}.error.png"))
     return 0
+
+
+def fit_rig_to_plant(config):
+    """``--fit-rig``: the configuration with the LiDAR moved to fit the placed plant.
+
+    Returns:
+        (RunConfig with the fitted rig, the placed PlantMesh, the sentence saying what was chosen).
+    """
+    import dataclasses
+
+    from plantsim.rig.fit import fit_rig
+    from plantsim.scan.pipeline import load_configured_plant
+
+    plant = load_configured_plant(config)
+    rig, why = fit_rig(plant, config.rig, config.lidar)
+    return dataclasses.replace(config, rig=rig), plant, why
 
 
 def _error_picture_line(result, path: str) -> str:
@@ -281,6 +301,9 @@ def build_parser() -> argparse.ArgumentParser:
                            "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh, "
                            "trait errors; written to the sidecar's \"evaluation\" and timings_s, "
                            "with a picture of the error in OUT.error.png (when EGL or OSMesa is present)")
+    scan.add_argument("--fit-rig", action="store_true",
+                      help="set the LiDAR's distance from the axis and its height from the placed plant's "
+                           "extent (swept radius, height) so it sees the whole plant, and say what was chosen")
     scan.add_argument("--no-pictures", action="store_true",
                       help="with --evaluate: do not draw OUT.error.png")
     scan.set_defaults(func=cmd_scan)
