@@ -298,7 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
     scan.add_argument("--evaluate", action="store_true",
                       help="measure the scan against its truth: the plant points' distance to the "
                            "placed mesh, Chamfer distance, coverage and, when an exact-traits file "
-                           "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh, "
+                           "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh or the mesh "
+                           "names its stem/leaf parts (OBJ o/g names, GLB nodes, PLY face label), "
                            "trait errors; written to the sidecar's \"evaluation\" and timings_s, "
                            "with a picture of the error in OUT.error.png (when EGL or OSMesa is present)")
     scan.add_argument("--fit-rig", action="store_true",
