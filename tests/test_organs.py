@@ -110,3 +110,28 @@ def test_cli_traits_round_trip(tmp_path, capsys):
     assert args.func(args) == 0
     data = json.loads(out.read_text())
     assert data["stem_count"] == 1 and data["leaf_count"] >= 2
+
+
+def test_scan_fit_rig_moves_the_lidar_and_says_so(tmp_path, capsys):
+    import json
+
+    import trimesh
+
+    from plantsim.cli.app import main
+
+    # A 0.8 m wide "plant": its swept radius (0.57 m) reaches the default LiDAR.
+    box = trimesh.creation.box(extents=[0.8, 0.8, 0.3])
+    mesh = tmp_path / "wide.stl"
+    mesh.write_bytes(box.export(file_type="stl"))
+    out = tmp_path / "wide.las"
+    assert main(["scan", str(mesh), "-o", str(out), "--step-deg", "90", "--ideal", "--fit-rig"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith("--fit-rig: LiDAR at ") and "(was " in printed[0]
+    meta = json.loads((tmp_path / "wide.las.json").read_text())
+    rig = meta["config"]["rig"]
+    r_max = float(np.hypot(0.4, 0.4))
+    # Distance: swept radius + a gap of at least range_min + 5 cm; height: mid-plant.
+    assert rig["lidar_distance_m"] >= r_max + LIDAR.range_min_m + 0.05 - 1e-9
+    assert rig["lidar_height_m"] == pytest.approx(0.15, abs=0.01)
+    assert meta["simulated"]["plan"]["rig_fit_warnings"] == []
+    assert f"LiDAR at {rig['lidar_distance_m']:.3f} m" in printed[0]

@@ -317,3 +317,46 @@ def test_committed_traits_describe_the_committed_stl():
         assert len(mesh.faces) == traits["n_faces"]
         assert mesh.bounds[1, 2] == pytest.approx(traits["height_m"], abs=1e-6)
         assert mesh.bounds[0, 2] == 0.0
+
+
+# ------------------------------------------------------------------------ rosette
+
+
+@pytest.mark.parametrize("n_leaves", [3, 12, 30])
+def test_rosette_traits_are_those_of_its_labelled_faces(n_leaves):
+    from plantsim.plant.procedural import PART_LEAF, PART_STEM, make_rosette
+
+    plant = make_rosette(seed=3, n_leaves=n_leaves)
+    t = plant.traits
+    v, f = plant.vertices_m, plant.faces
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    leaf = plant.face_part == PART_LEAF
+    assert len(t["leaves"]) == n_leaves == len(np.unique(plant.face_organ[leaf]))
+    for lf in t["leaves"]:
+        mine = leaf & (plant.face_organ == lf["index"])
+        assert lf["area_m2"] == pytest.approx(area[mine].sum(), rel=1e-12)
+        # A leaf is longer than the straight line from its collar to its tip, wider than 0.
+        pts = v[np.unique(f[mine])]
+        assert lf["length_m"] >= np.ptp(pts, axis=0).max() * 0.5 and lf["width_m"] > 0
+    assert t["leaf_area_m2"] == pytest.approx(area[leaf].sum(), rel=1e-12)
+    assert t["height_m"] == pytest.approx(v[:, 2].max()) and v[:, 2].min() == 0.0
+    (stem,) = t["stems"]
+    assert stem["diameter_m"] == pytest.approx(0.008) and stem["height_m"] == pytest.approx(0.02)
+    assert set(np.unique(plant.face_part)) == {PART_STEM, PART_LEAF}
+
+
+def test_rosette_leaves_overlap_when_crowded_and_params_are_checked():
+    from plantsim.plant.procedural import make_rosette
+
+    crowded = make_rosette(seed=0, n_leaves=30).traits
+    # Thirty leaves of ~0.1 m x 0.05 m around one crown: their summed area is far more
+    # than the disc they cover, so they overlap (as a rosette's do).
+    radius = max(lf["length_m"] for lf in crowded["leaves"])
+    assert crowded["leaf_area_m2"] > 0.5 * np.pi * radius ** 2
+    with pytest.raises(ValueError, match=r"leaf_width_segments must be even"):
+        make_rosette(leaf_width_segments=5)
+    with pytest.raises(ValueError, match=r"unknown RosetteParams field\(s\) \['n_tillers'\]"):
+        make_rosette(n_tillers=2)
+    again = make_rosette(seed=0, n_leaves=30)
+    assert np.array_equal(again.vertices_m, make_rosette(seed=0, n_leaves=30).vertices_m)

@@ -87,9 +87,13 @@ def cmd_scan(args: argparse.Namespace) -> int:
     config = resolve_config(args, scan_overrides(args))
     check_outputs(config, config_path=args.config)  # Fail before any work, not after it.
     plan_scan(config)
+    plant = None
+    if _opt(args, "fit_rig"):
+        config, plant, why = fit_rig_to_plant(config)
+        print(f"--fit-rig: {why}")
     progress, close = _progress_bar("scan")
     try:
-        result = run_scan(config, progress=progress)
+        result = run_scan(config, plant=plant, progress=progress)
     finally:
         close()
     check_plant_seen(result)
@@ -108,6 +112,22 @@ def cmd_scan(args: argparse.Namespace) -> int:
         if not _opt(args, "no_pictures"):
             print(_error_picture_line(result, f"{path}.error.png"))
     return 0
+
+
+def fit_rig_to_plant(config):
+    """``--fit-rig``: the configuration with the LiDAR moved to fit the placed plant.
+
+    Returns:
+        (RunConfig with the fitted rig, the placed PlantMesh, the sentence saying what was chosen).
+    """
+    import dataclasses
+
+    from plantsim.rig.fit import fit_rig
+    from plantsim.scan.pipeline import load_configured_plant
+
+    plant = load_configured_plant(config)
+    rig, why = fit_rig(plant, config.rig, config.lidar)
+    return dataclasses.replace(config, rig=rig), plant, why
 
 
 def _error_picture_line(result, path: str) -> str:
@@ -281,9 +301,13 @@ def build_parser(*, only_scan: bool = False) -> argparse.ArgumentParser:
     scan.add_argument("--evaluate", action="store_true",
                       help="measure the scan against its truth: the plant points' distance to the "
                            "placed mesh, Chamfer distance, coverage and, when an exact-traits file "
-                           "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh, "
+                           "(<mesh>.traits.json, as for the bundled plants) sits beside the mesh or the mesh "
+                           "names its stem/leaf parts (OBJ o/g names, GLB nodes, PLY face label), "
                            "trait errors; written to the sidecar's \"evaluation\" and timings_s, "
                            "with a picture of the error in OUT.error.png (when EGL or OSMesa is present)")
+    scan.add_argument("--fit-rig", action="store_true",
+                      help="set the LiDAR's distance from the axis and its height from the placed plant's "
+                           "extent (swept radius, height) so it sees the whole plant, and say what was chosen")
     scan.add_argument("--no-pictures", action="store_true",
                       help="with --evaluate: do not draw OUT.error.png")
     scan.set_defaults(func=cmd_scan)

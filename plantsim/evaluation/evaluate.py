@@ -180,6 +180,184 @@ def truth_in_turntable(truth: Mapping[str, Any], T_turntable_mesh: Any) -> dict[
     return out
 
 
+# Part names that say what a labelled mesh's part is (case-insensitive substrings).
+STEM_NAMES = ("stem", "stalk", "culm", "tiller", "trunk")
+LEAF_NAMES = ("leaf", "blade", "lamina")
+# PLY face properties read as part labels: 0 stem, k >= 1 leaf k (``label``/``part``).
+PLY_LABEL_PROPERTIES = ("label", "part", "organ")
+
+
+def _part_kind(name: str) -> str | None:
+    low = name.lower()
+    if any(word in low for word in LEAF_NAMES):
+        return "leaf"
+    if any(word in low for word in STEM_NAMES):
+        return "stem"
+    return None
+
+
+def _labelled_parts(path: Path) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """(kind, name, vertices, faces) of each stem/leaf part a mesh file names.
+
+    Read: separate objects or named groups (OBJ ``o``/``g``, GLB/glTF nodes, any
+    format trimesh loads as a scene of named geometries) and an integer PLY face
+    property (:data:`PLY_LABEL_PROPERTIES`: 0 stem, k >= 1 leaf k). Parts whose
+    name says neither stem nor leaf are left out.
+    """
+    import trimesh
+
+    if path.suffix.lower() == ".obj":
+        return _obj_parts(path)
+    loaded = trimesh.load(str(path), process=False)
+    parts = []
+    if isinstance(loaded, trimesh.Scene):
+        for node in loaded.graph.nodes_geometry:
+            T, geom_name = loaded.graph[node]
+            geom = loaded.geometry[geom_name]
+            kind = _part_kind(str(node)) or _part_kind(str(geom_name))
+            if kind is None or not isinstance(geom, trimesh.Trimesh):
+                continue
+            v = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), T)
+            parts.append((kind, str(node), v, np.asarray(geom.faces, dtype=np.int64)))
+        return parts
+    raw = (loaded.metadata or {}).get("_ply_raw", {}).get("face", {}).get("data")
+    names = raw.keys() if isinstance(raw, Mapping) else (getattr(getattr(raw, "dtype", None), "names", None) or ())
+    if raw is not None:
+        for prop in PLY_LABEL_PROPERTIES:
+            if prop in names:
+                labels = np.asarray(raw[prop]).reshape(-1).astype(np.int64)
+                v = np.asarray(loaded.vertices, dtype=np.float64)
+                f = np.asarray(loaded.faces, dtype=np.int64)
+                for k in np.unique(labels):
+                    kind = "stem" if k == 0 else "leaf"
+                    parts.append((kind, f"{prop}={k}", v, f[labels == k]))
+                break
+    return parts
+
+
+def _obj_parts(path: Path) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """Stem/leaf parts of an OBJ by its ``o``/``g`` names (polygons fan-triangulated)."""
+    vertices: list[list[float]] = []
+    faces_by_name: dict[str, list[list[int]]] = {}
+    name = ""
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            fields = line.split()
+            if not fields:
+                continue
+            if fields[0] == "v":
+                vertices.append([float(x) for x in fields[1:4]])
+            elif fields[0] in ("o", "g"):
+                name = " ".join(fields[1:])
+            elif fields[0] == "f":
+                idx = [int(f.split("/")[0]) for f in fields[1:]]
+                idx = [i - 1 if i > 0 else len(vertices) + i for i in idx]
+                faces_by_name.setdefault(name, []).extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    parts = []
+    for part, faces in faces_by_name.items():
+        kind = _part_kind(part)
+        if kind is not None:
+            parts.append((kind, part, v, np.asarray(faces, dtype=np.int64)))
+    return parts
+
+
+def truth_from_labelled_mesh(path: str | Path, *, units_scale: float = 1.0,
+                             n_samples_per_m2: float = 4.0e6) -> dict[str, Any] | None:
+    """Exact traits of a mesh that says which faces are stems and leaves.
+
+    Computed from the mesh itself, in the traits-JSON schema of
+    :func:`plantsim.evaluation.traits.traits_from_truth` (mesh frame, metres, z up):
+    ``height_m`` (top of all parts above the lowest stem vertex, or the lowest
+    vertex without a stem); per stem ``base_xy_m`` and ``diameter_m`` (algebraic
+    circle fit, :func:`plantsim.evaluation.traits.fit_circle`, to the stem's vertices in
+    its lowest 10 % of height) and ``height_m`` (its z extent); per leaf ``area_m2``
+    (the sum of its triangle areas: one side of a sheet; a closed thin solid counts
+    both sides, so halve it), ``length_m`` and ``width_m`` (the cloud method's
+    midrib geodesic and cross width, :func:`plantsim.evaluation.traits.leaf_length_width`,
+    on a dense uniform sampling of that leaf alone, so no segmentation error enters);
+    ``leaf_area_m2`` their sum.
+
+    Args:
+        path: mesh file (OBJ with groups/objects, GLB/glTF with nodes, PLY with a
+            face ``label`` property, ...).
+        units_scale: metres per mesh unit (0.001 for millimetres).
+        n_samples_per_m2: surface samples per m^2 for leaf length/width (4e6: ~0.5 mm spacing).
+
+    Returns:
+        The truth dict, or None when the mesh names no stem or leaf part.
+    """
+    parts = _labelled_parts(Path(path))
+    if not parts:
+        return None
+    import trimesh
+
+    stems, leaves, z_all, z_stem = [], [], [], []
+    for kind, name, v, f in parts:
+        v = v * units_scale
+        used = np.unique(f)
+        if len(f) == 0:
+            continue
+        z_all.append(v[used, 2])
+        if kind == "stem":
+            vz = v[used]
+            z_stem.append(vz[:, 2])
+            lo, hi = float(vz[:, 2].min()), float(vz[:, 2].max())
+            band = vz[vz[:, 2] <= lo + 0.1 * (hi - lo) + 1e-12]
+            entry: dict[str, Any] = {"index": len(stems), "name": name, "height_m": hi - lo}
+            try:
+                fit = traits.fit_circle(band[:, :2])
+                entry["base_xy_m"] = [float(fit.center_xy[0]), float(fit.center_xy[1])]
+                entry["diameter_m"] = 2.0 * float(fit.radius)
+            except ValueError:
+                entry["base_xy_m"] = [float(band[:, 0].mean()), float(band[:, 1].mean())]
+            stems.append(entry)
+        else:
+            mesh = trimesh.Trimesh(v, f, process=False)
+            area = float(mesh.area)
+            n = int(np.clip(area * n_samples_per_m2, 500, 200_000))
+            samples, _ = trimesh.sample.sample_surface_even(mesh, n, seed=0) if hasattr(
+                trimesh.sample, "sample_surface_even") else trimesh.sample.sample_surface(mesh, n)
+            spacing = math.sqrt(area / max(len(samples), 1))
+            length, width = traits.leaf_length_width(samples, link_distance=4.0 * spacing,
+                                                     bin_length=max(8.0 * spacing, 1e-4))
+            leaves.append({"index": len(leaves), "name": name, "length_m": length, "width_m": width,
+                           "area_m2": area})
+    if not z_all:
+        return None
+    z = np.concatenate(z_all)
+    base = float(np.concatenate(z_stem).min()) if z_stem else float(z.min())
+    truth: dict[str, Any] = {"height_m": float(z.max()) - base, "source": f"labelled mesh {Path(path).name}"}
+    if stems:
+        truth["stems"] = [s for s in stems if "base_xy_m" in s]
+        truth["stem_count"] = len(stems)
+    if leaves:
+        truth["leaves"] = leaves
+        truth["leaf_area_m2"] = float(sum(lf["area_m2"] for lf in leaves))
+    return truth
+
+
+def _labelled_truth(plant: PlantMesh) -> dict[str, Any] | None:
+    """Truth from the plant's own file when it labels its parts; None (with a note) otherwise."""
+    from plantsim.plant.mesh import UNITS_TO_M
+
+    source = Path(str(plant.source))
+    if not source.is_file():
+        return None
+    try:
+        truth = truth_from_labelled_mesh(source, units_scale=UNITS_TO_M.get(plant.units, 1.0))
+    except (ValueError, OSError, KeyError, IndexError) as exc:
+        logger.warning("could not read part labels from %s, traits not compared: %s", source, exc)
+        return None
+    if truth is None:
+        logger.info("%s has no traits file and names no stem/leaf parts: traits not compared", source)
+    elif plant.up != "z":
+        logger.warning("%s: truth from part labels needs a z-up mesh (up is %r): traits not compared",
+                       source, plant.up)
+        return None
+    return truth
+
+
 # Progress of the trait extraction, in the units of the distance part (one a
 # cloud point): it reports only when done, and costs about five times the exact
 # distances a point (libigl, bundled maize, 70k-280k points), so the bar moves
@@ -245,7 +423,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
         logger.warning("no point hit the plant: nothing to evaluate")
         return Evaluation(n_points=0, metrics=None, traits=None, estimate=None,
                           truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
-    with_traits = found is not None and options.traits
+    labelled = _labelled_truth(plant) if found is None and truth_path is None and options.traits else None
+    with_traits = (found is not None or labelled is not None) and options.traits
     n_metric = len(pts) + options.n_surface_samples
     total = n_metric + (_TRAITS_WORK_PER_POINT * len(pts) if with_traits else 0)
     # With two threads or more, the traits are extracted beside the metrics: both
@@ -266,7 +445,7 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
     comparison = estimate = None
     if with_traits:
         try:
-            truth = json.loads(found.read_text(encoding="utf-8"))
+            truth = labelled if found is None else json.loads(found.read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
             raise ValueError(f"truth_path: {found} is not valid JSON: {exc}") from exc
         try:
@@ -280,6 +459,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             comparison = estimate = None
     if progress is not None:
         progress(total, total)
+    if found is None and labelled is not None:
+        found = f"{plant.source} (face labels)"
     return Evaluation(n_points=int(len(pts)), metrics=measured, traits=comparison, estimate=estimate,
                       truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
 

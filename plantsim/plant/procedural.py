@@ -314,7 +314,7 @@ class ProceduralPlant:
     """A generated plant: mesh, part labels and exact traits.
 
     Attributes:
-        name: "maize" or "wheat".
+        name: "maize", "wheat" or "rosette".
         vertices_m: (n, 3) float64, metres, plant frame (Z up, main stem base at the
             origin, lowest point at z = 0). Read-only.
         faces: (m, 3) int64 vertex indices; stems and ears are wound outwards, leaves
@@ -332,7 +332,7 @@ class ProceduralPlant:
     face_part: np.ndarray
     face_organ: np.ndarray
     traits: dict
-    params: MaizeParams | WheatParams
+    params: MaizeParams | WheatParams | RosetteParams
 
 
 # ------------------------------------------------------------------------ geometry core
@@ -847,6 +847,102 @@ def make_wheat(*, seed: int = 0, **params: Any) -> ProceduralPlant:
 
 
 # -------------------------------------------------------------------------- exporters
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class RosetteParams:
+    """A rosette (lettuce, Arabidopsis, spinach): broad leaves radiating from a short crown.
+
+    Leaves spiral at the golden angle, the outer (older) ones longer, flatter and
+    wider; neighbours overlap when ``n_leaves`` is large, as in a real rosette.
+    Lengths in metres, angles in degrees.
+    """
+
+    n_leaves: int = 12
+    crown_height: float = 0.02        # m, the short stem (hypocotyl + crown)
+    crown_diameter: float = 0.008     # m
+    leaf_length: float = 0.12         # m, the outermost leaf
+    leaf_width: float = 0.06          # m, the outermost leaf's widest chord
+    outer_angle_deg: float = 70.0     # from vertical at the collar, outermost leaf
+    inner_angle_deg: float = 25.0     # from vertical at the collar, innermost leaf
+    droop_deg: float = 25.0           # added towards the tip
+    size_jitter: float = 0.1          # relative
+    leaf_segments: int = 24
+    leaf_width_segments: int = 8
+    stem_sides: int = 24
+
+    def __post_init__(self) -> None:
+        _set(self, "n_leaves", _as_int("n_leaves", self.n_leaves, 1, 60))
+        for name, hi in (("crown_height", 0.5), ("crown_diameter", 0.1), ("leaf_length", 2.0),
+                         ("leaf_width", 1.0)):
+            _set(self, name, _as_float(name, getattr(self, name), 0.0, hi, "m", lo_open=True))
+        for name in ("outer_angle_deg", "inner_angle_deg", "droop_deg"):
+            _set(self, name, _as_float(name, getattr(self, name), 0.0, 89.0, "deg"))
+        _set(self, "size_jitter", _as_float("size_jitter", self.size_jitter, 0.0, 0.5, ""))
+        _set(self, "leaf_segments", _as_int("leaf_segments", self.leaf_segments, 4, 400))
+        _set(self, "leaf_width_segments", _as_int("leaf_width_segments", self.leaf_width_segments, 2, 64))
+        _set(self, "stem_sides", _as_int("stem_sides", self.stem_sides, 6, 128))
+        if self.leaf_width_segments % 2:
+            raise ValueError(f"leaf_width_segments must be even (the midrib is the middle column), "
+                             f"got {self.leaf_width_segments}")
+
+
+GOLDEN_ANGLE_DEG = 137.50776405003785
+
+
+def make_rosette(*, seed: int = 0, **params: Any) -> ProceduralPlant:
+    """Generates a rosette plant: a short crown and broad spiralled leaves.
+
+    Leaf k (0 outermost) leaves the crown top at azimuth ``k * 137.5 deg`` (golden
+    angle, with jitter), length and width falling from the outermost to 45 % of it
+    for the innermost, collar angle from ``outer_angle_deg`` to ``inner_angle_deg``.
+    Broad elliptic blades (widest at 45 % of the length, short petiole-like collar).
+
+    Args:
+        seed: Seed of the ``numpy.random.default_rng`` that draws the jitter.
+        **params: Fields of ``RosetteParams`` to override.
+
+    Returns:
+        The plant, with exact traits (module docstring definitions; stem = the crown).
+
+    Raises:
+        ValueError: An unknown or invalid parameter, or a negative seed.
+    """
+    seed = _check_seed(seed)
+    p: RosetteParams = _make_params(RosetteParams, params)
+    rng = np.random.default_rng(seed)
+    n = p.n_leaves
+    u = rng.uniform(-1.0, 1.0, size=(5, n))
+    builder = _Builder()
+    r = 0.5 * p.crown_diameter
+    stem_vertices, stem_faces, top = _stem(np.zeros(2), p.crown_height, 0.0, 0.0, r, r, p.stem_sides, 3)
+    builder.add(stem_vertices, stem_faces, PART_STEM, 0)
+    stems = [{"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 2.0 * r,
+              "height_m": float(top[2]), "top_xyz_m": [float(c) for c in top]}]
+    first = rng.uniform(0.0, 2.0 * np.pi)
+    leaves = []
+    for k in range(n):
+        q = k / (n - 1) if n > 1 else 0.0          # 0 outermost, 1 innermost
+        size = (1.0 - 0.55 * q)
+        azimuth = first + k * math.radians(GOLDEN_ANGLE_DEG) + math.radians(8.0) * u[0, k]
+        theta0 = math.radians(p.outer_angle_deg + (p.inner_angle_deg - p.outer_angle_deg) * q
+                              + 5.0 * u[1, k])
+        theta0 = min(max(theta0, math.radians(1.0)), math.radians(88.0))
+        # The collars stack up the crown's top few millimetres, inner leaves higher.
+        z = p.crown_height * (0.8 + 0.2 * q)
+        base = np.array([0.9 * r * math.cos(azimuth), 0.9 * r * math.sin(azimuth), z])
+        shape = _LeafShape(
+            base=base, azimuth=azimuth,
+            length=p.leaf_length * size * (1.0 + p.size_jitter * u[2, k]),
+            width=p.leaf_width * size * (1.0 + p.size_jitter * u[3, k]),
+            theta0=theta0, droop=math.radians(p.droop_deg) * (1.0 - 0.5 * q) * (1.0 + p.size_jitter * u[4, k]),
+            curl=0.0, twist=0.0, fold=0.05, wave_amplitude=0.0, wave_length=1.0, wave_phase=(0.0, 0.0),
+            collar=0.08, peak=0.45, tip_power=2.0,
+            segments=p.leaf_segments, width_segments=p.leaf_width_segments)
+        vertices, faces = _grounded_leaf(shape, k)
+        builder.add(vertices, faces, PART_LEAF, k)
+        leaves.append(_leaf_traits(k, 0, vertices, faces, shape))
+    return _finish("rosette", seed, p, builder, stems, leaves)
 
 
 def _round_floats(value: Any) -> Any:
