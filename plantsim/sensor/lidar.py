@@ -246,45 +246,42 @@ class SimulatedLidar:
             d = hits.dist_m.reshape(c, n_beams, len(probe))
             g = hits.geom_id.reshape(c, n_beams, len(probe))
             nrm = hits.normal_base.reshape(c, n_beams, len(probe), 3)
-            o_fp, d_fp = origins[var, beams], dirs[var, beams]  # (c, n_beams, S, 3)
+            # Only the probes' rays are gathered here ((c, n_beams, n_probe, 3)); a refined
+            # beam's whole footprint is gathered in _refine.
+            d_probe = dirs[var[..., None], beams[:, None], probe]
             if self.adaptive:
-                hit = o_fp[:, :, probe] + np.maximum(d, 0)[..., None] * d_fp[:, :, probe]
+                hit = origins[var[..., None], beams[:, None], probe] + np.maximum(d, 0)[..., None] * d_probe
                 refine = ~coplanar_probes(hit, nrm, g, tolerance_m=self.model.flat_tolerance_m)
                 # Flat footprints: the axis ray stands for the whole footprint.
-                ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1], d_fp[:, :, :1], np.ones(1))
+                ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1], d_probe[:, :, :1], np.ones(1))
             else:
                 refine = np.zeros((c, n_beams), dtype=bool)
-                ret, geom_dom = self._combine(d, g, nrm, d_fp, self.weights[var, beams])
+                ret, geom_dom = self._combine(d, g, nrm, d_probe, self.weights[var, beams])
             for k in keys:
                 out[k][lo:hi] = getattr(ret, k)
             geom_out[lo:hi] = geom_dom
             if refine.any():
-                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest, var, d_fp)
+                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest, var, dirs)
             if progress is not None:
                 progress(hi, n_lines)
         log.debug("footprint: %d of %d beams refined with %d sub-rays", self.n_refined, n_lines * n_beams, S)
         return FootprintReturn(dominant=None, **out), geom_out
 
-    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest, var, d_fp):
+    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest, var, dirs):
         """Casts the other sub-rays of the flagged beams and combines all of them."""
         S = self.n_sub
         n_beams = refine.shape[1]
         line_of, beam_of = np.nonzero(refine)
         self.n_refined += len(line_of)
-        counts = refine.sum(axis=1)
-        m = int(counts.max())
-        starts = np.cumsum(counts) - counts
-        pos = np.arange(len(line_of)) - np.repeat(starts, counts)
-        c, n_rest = refine.shape[0], len(rest)
+        n_rest = len(rest)
         variant = var[line_of, beam_of]
-        ids = np.full((c, m, n_rest), self.caster.pad_id, dtype=np.int64)
-        ids[line_of, pos] = ((variant * n_beams + beam_of) * S)[:, None] + rest[None, :]
-        th = np.zeros((c, m, n_rest))
-        th[line_of, pos] = theta[line_of, beam_of][:, None]
-        hits = self.caster.cast(ids.reshape(c, m * n_rest), th.reshape(c, m * n_rest), normals=True)
-        d2 = hits.dist_m.reshape(c, m, n_rest)[line_of, pos]
-        g2 = hits.geom_id.reshape(c, m, n_rest)[line_of, pos]
-        n2 = hits.normal_base.reshape(c, m, n_rest, 3)[line_of, pos]
+        # All the refined beams' other sub-rays in one flat selection, each at its beam's angle.
+        ids = (((variant * n_beams + beam_of) * S)[:, None] + rest[None, :]).reshape(1, -1)
+        th = np.repeat(theta[line_of, beam_of], n_rest)[None, :]
+        hits = self.caster.cast(ids, th, normals=True, chunk_lines=1)
+        d2 = hits.dist_m.reshape(-1, n_rest)
+        g2 = hits.geom_id.reshape(-1, n_rest)
+        n2 = hits.normal_base.reshape(-1, n_rest, 3)
         k = len(line_of)
         dist = np.empty((k, S))
         geom = np.empty((k, S), dtype=np.int32)
@@ -292,7 +289,7 @@ class SimulatedLidar:
         dist[:, probe], geom[:, probe], normal[:, probe] = d[line_of, beam_of], g[line_of, beam_of], \
             nrm[line_of, beam_of]
         dist[:, rest], geom[:, rest], normal[:, rest] = d2, g2, n2
-        ret, geom_dom = self._combine(dist, geom, normal, d_fp[line_of, beam_of],
+        ret, geom_dom = self._combine(dist, geom, normal, dirs[variant, beam_of],
                                       self.weights[variant, beam_of])
         rows = lo + line_of
         for key in ("range_m", "power", "cos_incidence", "spread_m"):
