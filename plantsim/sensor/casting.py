@@ -363,13 +363,14 @@ class Caster:
         dist = self._fixed_dist[ids]
         geom = self._fixed_geom[ids]
         normal = self._fixed_normal[ids] if normals else None
+        flat_dist, flat_geom = dist.reshape(-1), geom.reshape(-1)
+        flat_normal = normal.reshape(-1, 3) if normals else None
         for lo in range(0, n_lines, chunk_lines):
             hi = min(lo + chunk_lines, n_lines)
-            sel = ids[lo:hi]
-            real = self._may_hit[sel]
-            rows, cols = np.nonzero(real)
-            chosen = sel[rows, cols]
-            th = theta[lo:hi][rows] if per_line else theta[lo:hi][rows, cols]
+            sel = ids[lo:hi].reshape(-1)
+            at = np.flatnonzero(self._may_hit[sel])  # flat positions in this chunk that are cast
+            chosen = sel[at]
+            th = theta[lo + at // k] if per_line else theta[lo:hi].reshape(-1)[at]
             c, s = np.cos(th), np.sin(th)
             o = _turn(self._origins[chosen], c, -s)
             d = _turn(self._dirs[chosen], c, -s)
@@ -379,13 +380,13 @@ class Caster:
             self.n_rays_cast += len(chosen)
             dt = hits.dist_m
             df = self._fixed_dist[chosen]
-            turning_nearer = (dt >= 0) & ((df < 0) | (dt <= df))
-            r, q = rows[turning_nearer] + lo, cols[turning_nearer]
-            dist[r, q] = dt[turning_nearer]
-            geom[r, q] = hits.geom_id[turning_nearer]
+            nearer = np.flatnonzero((dt >= 0) & ((df < 0) | (dt <= df)))
+            where = lo * k + at[nearer]
+            flat_dist[where] = dt[nearer]
+            flat_geom[where] = hits.geom_id[nearer]
             if normals:
                 # Back from the turntable frame to the base frame.
-                normal[r, q] = _turn(hits.normal_base[turning_nearer], c[turning_nearer], s[turning_nearer])
+                flat_normal[where] = _turn(hits.normal_base[nearer], c[nearer], s[nearer])
             if progress is not None:
                 progress(hi, n_lines)
         return Hits(dist, geom, normal)
