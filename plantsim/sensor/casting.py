@@ -370,8 +370,12 @@ class Caster:
             sel = ids[lo:hi].reshape(-1)
             at = np.flatnonzero(self._may_hit[sel])  # flat positions in this chunk that are cast
             chosen = sel[at]
-            th = theta[lo + at // k] if per_line else theta[lo:hi].reshape(-1)[at]
-            c, s = np.cos(th), np.sin(th)
+            if per_line:  # one cosine and sine a line, spread over its rays
+                line = at // k
+                c, s = np.cos(theta[lo:hi])[line], np.sin(theta[lo:hi])[line]
+            else:
+                th = theta[lo:hi].reshape(-1)[at]
+                c, s = np.cos(th), np.sin(th)
             o = _turn(self._origins[chosen], c, -s)
             d = _turn(self._dirs[chosen], c, -s)
             t = time.perf_counter()

@@ -240,9 +240,12 @@ class SimulatedLidar:
             hi = min(lo + chunk, n_lines)
             c = hi - lo
             var = variant[lo:hi]
-            ids = (first_id[lo:hi, :, None] + probe[None, None, :]).reshape(c, -1)
-            th = theta[lo:hi] if theta.ndim == 1 else np.repeat(per_beam[lo:hi], len(probe), axis=1)
-            hits = self.caster.cast(ids, th, normals=True)
+            ids = first_id[lo:hi, :, None] + probe[None, None, :]
+            if theta.ndim == 1:  # one angle a line
+                hits = self.caster.cast(ids.reshape(c, -1), theta[lo:hi], normals=True)
+            else:  # one angle a beam: each beam's probes are a "line" of the caster
+                hits = self.caster.cast(ids.reshape(c * n_beams, -1), per_beam[lo:hi].reshape(-1), normals=True,
+                                        chunk_lines=c * n_beams)
             d = hits.dist_m.reshape(c, n_beams, len(probe))
             g = hits.geom_id.reshape(c, n_beams, len(probe))
             nrm = hits.normal_base.reshape(c, n_beams, len(probe), 3)
@@ -276,9 +279,9 @@ class SimulatedLidar:
         n_rest = len(rest)
         variant = var[line_of, beam_of]
         # All the refined beams' other sub-rays in one flat selection, each at its beam's angle.
-        ids = (((variant * n_beams + beam_of) * S)[:, None] + rest[None, :]).reshape(1, -1)
-        th = np.repeat(theta[line_of, beam_of], n_rest)[None, :]
-        hits = self.caster.cast(ids, th, normals=True, chunk_lines=1)
+        # (Each refined beam is a "line" of the caster: one angle for its n_rest sub-rays.)
+        ids = ((variant * n_beams + beam_of) * S)[:, None] + rest[None, :]
+        hits = self.caster.cast(ids, theta[line_of, beam_of], normals=True, chunk_lines=max(len(ids), 1))
         d2 = hits.dist_m.reshape(-1, n_rest)
         g2 = hits.geom_id.reshape(-1, n_rest)
         n2 = hits.normal_base.reshape(-1, n_rest, 3)
