@@ -229,8 +229,6 @@ class SimulatedLidar:
         variant = (rng.integers(self.n_variants, size=(n_lines, n_beams)) if self.n_variants > 1
                    else np.zeros((n_lines, n_beams), dtype=np.int64))
         first_id = (variant * n_beams + beams) * S  # the id of each footprint's sub-ray 0
-        origins = self.caster.origins_base.reshape(self.n_variants, n_beams, S, 3)
-        dirs = self.caster.dirs_base.reshape(self.n_variants, n_beams, S, 3)
         keys = ("range_m", "power", "cos_incidence", "spread_m")
         out = {k: np.full((n_lines, n_beams), np.nan) for k in keys}
         geom_out = np.full((n_lines, n_beams), -1, dtype=np.int32)
@@ -251,9 +249,9 @@ class SimulatedLidar:
             nrm = hits.normal_base.reshape(c, n_beams, len(probe), 3)
             # Only the probes' rays are gathered here ((c, n_beams, n_probe, 3)); a refined
             # beam's whole footprint is gathered in _refine.
-            d_probe = dirs[var[..., None], beams[:, None], probe]
+            d_probe = self.caster.dirs_base[ids]
             if self.adaptive:
-                hit = origins[var[..., None], beams[:, None], probe] + np.maximum(d, 0)[..., None] * d_probe
+                hit = self.caster.origins_base[ids] + np.maximum(d, 0)[..., None] * d_probe
                 refine = ~coplanar_probes(hit, nrm, g, tolerance_m=self.model.flat_tolerance_m)
                 # Flat footprints: the axis ray stands for the whole footprint.
                 ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1], d_probe[:, :, :1], np.ones(1))
@@ -264,13 +262,13 @@ class SimulatedLidar:
                 out[k][lo:hi] = getattr(ret, k)
             geom_out[lo:hi] = geom_dom
             if refine.any():
-                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest, var, dirs)
+                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest, var)
             if progress is not None:
                 progress(hi, n_lines)
         log.debug("footprint: %d of %d beams refined with %d sub-rays", self.n_refined, n_lines * n_beams, S)
         return FootprintReturn(dominant=None, **out), geom_out
 
-    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest, var, dirs):
+    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest, var):
         """Casts the other sub-rays of the flagged beams and combines all of them."""
         S = self.n_sub
         n_beams = refine.shape[1]
@@ -280,7 +278,8 @@ class SimulatedLidar:
         variant = var[line_of, beam_of]
         # All the refined beams' other sub-rays in one flat selection, each at its beam's angle.
         # (Each refined beam is a "line" of the caster: one angle for its n_rest sub-rays.)
-        ids = ((variant * n_beams + beam_of) * S)[:, None] + rest[None, :]
+        first = (variant * n_beams + beam_of) * S  # the id of each refined footprint's sub-ray 0
+        ids = first[:, None] + rest[None, :]
         hits = self.caster.cast(ids, theta[line_of, beam_of], normals=True, chunk_lines=max(len(ids), 1))
         d2 = hits.dist_m.reshape(-1, n_rest)
         g2 = hits.geom_id.reshape(-1, n_rest)
@@ -292,7 +291,7 @@ class SimulatedLidar:
         dist[:, probe], geom[:, probe], normal[:, probe] = d[line_of, beam_of], g[line_of, beam_of], \
             nrm[line_of, beam_of]
         dist[:, rest], geom[:, rest], normal[:, rest] = d2, g2, n2
-        ret, geom_dom = self._combine(dist, geom, normal, dirs[variant, beam_of],
+        ret, geom_dom = self._combine(dist, geom, normal, self.caster.dirs_base[first[:, None] + np.arange(S)],
                                       self.weights[variant, beam_of])
         rows = lo + line_of
         for key in ("range_m", "power", "cos_incidence", "spread_m"):
