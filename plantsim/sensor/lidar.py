@@ -210,7 +210,7 @@ class SimulatedLidar:
     # --- the footprint --------------------------------------------------------
 
     def _combine(self, dist, geom, normal, dirs, weights):
-        cos = np.abs(np.einsum("...k,...k->...", normal, dirs))
+        cos = np.abs(normal[..., 0] * dirs[..., 0] + normal[..., 1] * dirs[..., 1] + normal[..., 2] * dirs[..., 2])
         refl = self.reflectance[self.scene.geom_class[geom]]
         ret = combine_footprint(dist, cos, refl, weights, range_max_m=self.lidar.range_max_m)
         dom = np.maximum(ret.dominant, 0)
