@@ -62,12 +62,14 @@ def test_culling_gives_the_hits_of_casting_every_ray(model):
     per_beam = theta[:, None] + np.linspace(0.0, 0.01, len(ANGLES))[None, :]
     culled = [source.cast_lines(theta, np.random.default_rng(3)),
               source.cast_lines(per_beam, np.random.default_rng(4))]
-    n_culled = caster.n_rays_cast
+    n_cast, n_culled = caster.n_rays_cast, caster.n_rays_culled
+    assert 0 < n_culled < n_cast
+    assert source.work()["turning_cast"]["culled"] == n_culled
     caster._may_hit[:-1] = True  # cast every ray
-    caster.n_rays_cast = 0
+    caster.n_rays_cast = caster.n_rays_culled = 0
     every = [source.cast_lines(theta, np.random.default_rng(3)),
              source.cast_lines(per_beam, np.random.default_rng(4))]
-    assert caster.n_rays_cast > n_culled
+    assert caster.n_rays_cast == n_cast and caster.n_rays_culled == 0
     for a, b in zip(culled, every):
         for field in a._fields:
             x, y = getattr(a, field), getattr(b, field)

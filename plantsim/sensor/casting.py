@@ -300,7 +300,11 @@ class Caster:
 
     Attributes:
       pad_id: a ray id that casts nothing (a miss), for padding ragged selections.
-      n_rays_cast: turning rays cast so far (padding excluded).
+      n_rays_cast: turning rays cast so far (padding excluded), including those
+        resolved by the bounding cylinder alone (``n_rays_culled``).
+      n_rays_culled: rays of ``n_rays_cast`` that could not reach the turning geoms
+        (they miss the cylinder about the axis that holds them, or hit the rig first)
+        and so never reached the backend.
       n_rays_fixed: rays cast once against the fixed rig (the whole ray table).
       cast_fixed_s, cast_turning_s: wall time inside the backend, s.
     """
@@ -334,6 +338,7 @@ class Caster:
                                np.where(fixed.dist_m >= 0, fixed.dist_m, np.inf))
         self._may_hit = np.append(reach, False)
         self.n_rays_cast = 0
+        self.n_rays_culled = 0
 
     @property
     def reachable_fraction(self) -> float:
@@ -381,7 +386,9 @@ class Caster:
             t = time.perf_counter()
             hits = self.backend.cast_turning(o, d, normals=normals)
             self.cast_turning_s += time.perf_counter() - t
-            self.n_rays_cast += len(chosen)
+            n_selected = sel.size - int(np.count_nonzero(sel == self.pad_id))
+            self.n_rays_cast += n_selected
+            self.n_rays_culled += n_selected - len(chosen)
             dt = hits.dist_m
             df = self._fixed_dist[chosen]
             nearer = np.flatnonzero((dt >= 0) & ((df < 0) | (dt <= df)))

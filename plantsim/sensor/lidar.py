@@ -149,7 +149,9 @@ class SimulatedLidar:
         ``rig_cast_once``: the whole ray table (every footprint sub-ray of every
         pattern) against the fixed rig, once; ``turning_cast``: rays cast against the
         turning parts (one per beam and line when ideal, the footprint's sub-rays
-        when realistic); ``sensor_model``: the range/intensity/noise model;
+        when realistic), of which ``culled`` could not reach them at any angle and
+        were resolved by a bounding-cylinder test without reaching the backend;
+        ``sensor_model``: the range/intensity/noise model;
         ``footprint_and_bookkeeping``: the rest of the line source's time
         (rotating rays, combining sub-rays, merging with the rig's hits).
         """
@@ -157,14 +159,15 @@ class SimulatedLidar:
         other_s = max(self.lines_s - c.cast_turning_s - self.sensor_model_s, 0.0)
 
         def phase(rays, seconds):
-            out = {"rays": int(rays), "s": round(seconds, 6)}
-            if rays and seconds > 0:
-                out["rays_per_s"] = round(rays / seconds)
+            # rays/s from the seconds as written, so the two agree however short the phase.
+            out = {"rays": int(rays), "s": round(seconds, 9)}
+            if rays and out["s"] > 0:
+                out["rays_per_s"] = round(rays / out["s"])
             return out
 
         return {"beams": int(self.n_beams_taken),
                 "rig_cast_once": phase(c.n_rays_fixed, c.cast_fixed_s),
-                "turning_cast": phase(c.n_rays_cast, c.cast_turning_s),
+                "turning_cast": {**phase(c.n_rays_cast, c.cast_turning_s), "culled": int(c.n_rays_culled)},
                 "sensor_model": {"s": round(self.sensor_model_s, 6)},
                 "footprint_and_bookkeeping": {"s": round(other_s, 6)}}
 
