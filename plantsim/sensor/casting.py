@@ -207,6 +207,87 @@ def _turn(vectors: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
     return out
 
 
+def turning_bounds(scene: Scene, *, margin_m: float = 1e-6) -> tuple[float, float, float]:
+    """A cylinder about the turntable axis holding every turning geom at every angle.
+
+    The table turns about the base frame's Z axis (the hinge at 0 puts the
+    turntable frame on the base frame), so a cylinder about that axis holds the
+    turning geoms at every angle if it holds them at one: a ray that misses it
+    misses them at any turntable angle. Mesh geoms are bounded by their
+    vertices, other geoms by their bounding spheres (``geom_rbound``).
+
+    Args:
+      scene: the compiled scene.
+      margin_m: added to the radius and both ends.
+
+    Returns:
+      (radius_m, z_min_m, z_max_m), base frame; (0, 0, -1) (an empty cylinder)
+      when nothing that a ray may hit turns.
+    """
+    model = scene.model
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    cast = np.isin(model.geom_group, np.nonzero(CAST_GEOMGROUP)[0])
+    radius, z_min, z_max = 0.0, np.inf, -np.inf
+    for g in np.nonzero(turning_geoms(scene) & cast)[0]:
+        pos, rot = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_dataid[g] >= 0:
+            mesh = model.geom_dataid[g]
+            v0, nv = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+            v = model.mesh_vert[v0:v0 + nv].astype(np.float64) @ rot.T + pos
+            # float32 vertices: pad by their rounding as well.
+            pad = 1e-6 * float(np.abs(v).max(initial=0.0))
+            radius = max(radius, float(np.hypot(v[:, 0], v[:, 1]).max(initial=0.0)) + pad)
+            z_min, z_max = min(z_min, float(v[:, 2].min()) - pad), max(z_max, float(v[:, 2].max()) + pad)
+        else:
+            rb = float(model.geom_rbound[g])
+            if not rb > 0:  # a plane or an unbounded geom: no cylinder holds it
+                return np.inf, -np.inf, np.inf
+            radius = max(radius, float(np.hypot(pos[0], pos[1])) + rb)
+            z_min, z_max = min(z_min, pos[2] - rb), max(z_max, pos[2] + rb)
+    if z_max < z_min:
+        return 0.0, 0.0, -1.0
+    return radius + margin_m, z_min - margin_m, z_max + margin_m
+
+
+def rays_may_reach(origins: np.ndarray, dirs: np.ndarray, bounds: tuple[float, float, float],
+                   max_dist_m: np.ndarray) -> np.ndarray:
+    """Whether each ray enters a Z-axis cylinder before ``max_dist_m`` (conservative).
+
+    Args:
+      origins, dirs: (N, 3) float64, base frame (dirs need not be unit).
+      bounds: (radius_m, z_min_m, z_max_m) from :func:`turning_bounds`.
+      max_dist_m: (N,) float64, the ray's length to consider (inf: unbounded).
+
+    Returns:
+      (N,) bool: False only where the ray's segment [0, max_dist_m] surely misses the cylinder.
+    """
+    radius, z_min, z_max = bounds
+    if not np.isfinite(radius):
+        return np.ones(len(origins), dtype=bool)
+    ox, oy, oz = origins[:, 0], origins[:, 1], origins[:, 2]
+    dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # |o_xy + t d_xy|^2 <= R^2: a t^2 + 2 b t + c <= 0.
+        a = dx * dx + dy * dy
+        b = ox * dx + oy * dy
+        c = ox * ox + oy * oy - radius * radius
+        disc = b * b - a * c
+        root = np.sqrt(np.maximum(disc, 0.0))
+        t0 = np.where(a > 0, (-b - root) / a, np.where(c <= 0, -np.inf, np.inf))
+        t1 = np.where(a > 0, (-b + root) / a, np.where(c <= 0, np.inf, -np.inf))
+        t0 = np.where((a > 0) & (disc < 0), np.inf, t0)
+        # z_min <= o_z + t d_z <= z_max.
+        za, zb = (z_min - oz) / dz, (z_max - oz) / dz
+        inside_z = (oz >= z_min) & (oz <= z_max)
+        s0 = np.where(dz != 0, np.minimum(za, zb), np.where(inside_z, -np.inf, np.inf))
+        s1 = np.where(dz != 0, np.maximum(za, zb), np.where(inside_z, np.inf, -np.inf))
+    enter = np.maximum(np.maximum(t0, s0), 0.0)
+    leave = np.minimum(t1, s1)
+    # A relative slack on the entry so rounding can only keep a ray, never drop one.
+    return (enter <= leave) & (enter <= max_dist_m * (1 + 1e-9) + 1e-9)
+
+
 class Caster:
     """Casts a sensor's rays at given turntable angles.
 
@@ -219,7 +300,11 @@ class Caster:
 
     Attributes:
       pad_id: a ray id that casts nothing (a miss), for padding ragged selections.
-      n_rays_cast: turning rays cast so far (padding excluded).
+      n_rays_cast: turning rays cast so far (padding excluded), including those
+        resolved by the bounding cylinder alone (``n_rays_culled``).
+      n_rays_culled: rays of ``n_rays_cast`` that could not reach the turning geoms
+        (they miss the cylinder about the axis that holds them, or hit the rig first)
+        and so never reached the backend.
       n_rays_fixed: rays cast once against the fixed rig (the whole ray table).
       cast_fixed_s, cast_turning_s: wall time inside the backend, s.
     """
@@ -230,8 +315,14 @@ class Caster:
         self.backend = backend or MujocoBackend(scene, nthread=nthread)
         n = len(origins_base)
         self.pad_id = n
-        self.origins_base = np.asarray(origins_base, dtype=np.float64).reshape(n, 3)
-        self.dirs_base = np.asarray(dirs_base, dtype=np.float64).reshape(n, 3)
+        # The ray table with the padding ray appended (row n), cast from contiguous float64 rows.
+        self._origins = np.zeros((n + 1, 3))
+        self._dirs = np.zeros((n + 1, 3))
+        self._origins[:n] = np.asarray(origins_base, dtype=np.float64).reshape(n, 3)
+        self._dirs[:n] = np.asarray(dirs_base, dtype=np.float64).reshape(n, 3)
+        self._dirs[n] = (0.0, 0.0, 1.0)
+        self.origins_base = self._origins[:n]
+        self.dirs_base = self._dirs[:n]
         t = time.perf_counter()
         fixed = self.backend.cast_fixed(self.origins_base, self.dirs_base, normals=True)
         self.cast_fixed_s = time.perf_counter() - t
@@ -240,7 +331,19 @@ class Caster:
         self._fixed_dist = np.append(fixed.dist_m, -1.0)
         self._fixed_geom = np.append(fixed.geom_id, -1).astype(np.int32)
         self._fixed_normal = np.vstack([fixed.normal_base, np.zeros((1, 3))])
+        # Rays that cannot reach the turning geoms at any angle (they miss the cylinder about
+        # the axis that holds them, or the rig stops them first) are never cast: their hit
+        # is the rig's, exactly as if they had been cast and missed.
+        reach = rays_may_reach(self.origins_base, self.dirs_base, turning_bounds(scene),
+                               np.where(fixed.dist_m >= 0, fixed.dist_m, np.inf))
+        self._may_hit = np.append(reach, False)
         self.n_rays_cast = 0
+        self.n_rays_culled = 0
+
+    @property
+    def reachable_fraction(self) -> float:
+        """The share of the ray table that may hit a turning geom (the rest is never cast)."""
+        return float(self._may_hit[:-1].mean()) if self.pad_id else 0.0
 
     def cast(self, ray_ids: np.ndarray, table_rad: np.ndarray, *, normals: bool = False,
              chunk_lines: int = 64, progress: Progress | None = None) -> Hits:
@@ -261,35 +364,40 @@ class Caster:
         n_lines, k = ids.shape
         theta = np.asarray(table_rad, dtype=np.float64)
         per_line = theta.ndim == 1  # one angle a line: one cos/sin a line, broadcast over its rays
-        dist = np.empty((n_lines, k))
-        geom = np.empty((n_lines, k), dtype=np.int32)
-        normal = np.empty((n_lines, k, 3)) if normals else None
-        origins = np.vstack([self.origins_base, np.zeros((1, 3))])
-        dirs = np.vstack([self.dirs_base, (0.0, 0.0, 1.0)])
+        # The rig's hits first; the turning geoms' hits replace them where nearer.
+        dist = self._fixed_dist[ids]
+        geom = self._fixed_geom[ids]
+        normal = self._fixed_normal[ids] if normals else None
+        flat_dist, flat_geom = dist.reshape(-1), geom.reshape(-1)
+        flat_normal = normal.reshape(-1, 3) if normals else None
         for lo in range(0, n_lines, chunk_lines):
             hi = min(lo + chunk_lines, n_lines)
-            sel = ids[lo:hi]
-            th = theta[lo:hi, None] if per_line else theta[lo:hi]
-            c, s = np.cos(th), np.sin(th)
-            real = sel != self.pad_id
-            o = _turn(origins[sel], c, -s)
-            d = _turn(dirs[sel], c, -s)
+            sel = ids[lo:hi].reshape(-1)
+            at = np.flatnonzero(self._may_hit[sel])  # flat positions in this chunk that are cast
+            chosen = sel[at]
+            if per_line:  # one cosine and sine a line, spread over its rays
+                line = at // k
+                c, s = np.cos(theta[lo:hi])[line], np.sin(theta[lo:hi])[line]
+            else:
+                th = theta[lo:hi].reshape(-1)[at]
+                c, s = np.cos(th), np.sin(th)
+            o = _turn(self._origins[chosen], c, -s)
+            d = _turn(self._dirs[chosen], c, -s)
             t = time.perf_counter()
-            hits = self.backend.cast_turning(o[real], d[real], normals=normals)
+            hits = self.backend.cast_turning(o, d, normals=normals)
             self.cast_turning_s += time.perf_counter() - t
-            self.n_rays_cast += int(real.sum())
-            dt = np.full(sel.shape, -1.0)
-            gt = np.full(sel.shape, -1, dtype=np.int32)
-            dt[real], gt[real] = hits.dist_m, hits.geom_id
-            df, gf = self._fixed_dist[sel], self._fixed_geom[sel]
-            rig_nearer = (df >= 0) & ((dt < 0) | (df < dt))
-            dist[lo:hi] = np.where(rig_nearer, df, dt)
-            geom[lo:hi] = np.where(rig_nearer, gf, gt)
+            n_selected = sel.size - int(np.count_nonzero(sel == self.pad_id))
+            self.n_rays_cast += n_selected
+            self.n_rays_culled += n_selected - len(chosen)
+            dt = hits.dist_m
+            df = self._fixed_dist[chosen]
+            nearer = np.flatnonzero((dt >= 0) & ((df < 0) | (dt <= df)))
+            where = lo * k + at[nearer]
+            flat_dist[where] = dt[nearer]
+            flat_geom[where] = hits.geom_id[nearer]
             if normals:
-                nt = np.zeros(sel.shape + (3,))
-                nt[real] = hits.normal_base
-                nt = _turn(nt, c, s)  # back from the turntable frame to the base frame
-                normal[lo:hi] = np.where(rig_nearer[..., None], self._fixed_normal[sel], nt)
+                # Back from the turntable frame to the base frame.
+                flat_normal[where] = _turn(hits.normal_base[nearer], c[nearer], s[nearer])
             if progress is not None:
                 progress(hi, n_lines)
         return Hits(dist, geom, normal)

@@ -116,22 +116,25 @@ class EmbreeBackend:
         if self._embree is None or not len(origins):
             return prim
         found = self._embree.run(origins.astype(np.float32), dirs.astype(np.float32))  # primID, -1: miss
-        hit = found >= 0
-        tri = found[hit]
+        at = np.flatnonzero(found >= 0)
+        tri = found[at]
         n_hit = self._plane_normal[tri]
-        dist = np.full(len(origins), -1.0)
+        o, d = origins[at], dirs[at]
         # Float64 distance to the plane of the triangle Embree found (Embree decided the inside test).
         with np.errstate(divide="ignore", invalid="ignore"):
-            dist[hit] = (self._plane_offset[tri] - np.einsum("ij,ij->i", n_hit, origins[hit])) \
-                / np.einsum("ij,ij->i", n_hit, dirs[hit])
+            dist = (self._plane_offset[tri] - (n_hit[:, 0] * o[:, 0] + n_hit[:, 1] * o[:, 1] + n_hit[:, 2] * o[:, 2])) \
+                / (n_hit[:, 0] * d[:, 0] + n_hit[:, 1] * d[:, 1] + n_hit[:, 2] * d[:, 2])
+        # The mesh's hit replaces the primitives' where it is nearer (only hits are touched).
+        prim_d = prim.dist_m[at]
+        nearer = np.flatnonzero((dist >= 0) & ((prim_d < 0) | (dist < prim_d)))
+        where = at[nearer]
+        out_dist, out_geom = prim.dist_m, prim.geom_id
+        out_dist[where] = dist[nearer]
+        out_geom[where] = self.geom_of_triangle[tri[nearer]]
+        out_normal = None
         if normals:
-            normal = np.zeros((len(origins), 3))
-            normal[hit] = n_hit
-        geom = np.where(hit, self.geom_of_triangle[np.maximum(found, 0)], -1).astype(np.int32)
-        mesh_nearer = (dist >= 0) & ((prim.dist_m < 0) | (dist < prim.dist_m))
-        out_dist = np.where(mesh_nearer, dist, prim.dist_m)
-        out_geom = np.where(mesh_nearer, geom, prim.geom_id)
-        out_normal = np.where(mesh_nearer[:, None], normal, prim.normal_base) if normals else None
+            out_normal = prim.normal_base
+            out_normal[where] = n_hit[nearer]
         return Hits(out_dist, out_geom, out_normal)
 
 

@@ -316,7 +316,8 @@ def coplanar_probes(hit_base: np.ndarray, normal_base: np.ndarray, geom_id: np.n
     same = np.all(geom_id == geom_id[..., :1], axis=-1)
     hit = geom_id[..., 0] >= 0
     offset = hit_base - hit_base[..., :1, :]
-    height = np.abs(np.einsum("...pk,...k->...p", offset, normal_base[..., 0, :]))
+    n0 = normal_base[..., :1, :]  # the axis hit's normal, against every probe
+    height = np.abs(offset[..., 0] * n0[..., 0] + offset[..., 1] * n0[..., 1] + offset[..., 2] * n0[..., 2])
     flat = np.all(height <= tolerance_m, axis=-1)
     # All probes missing is flat too: nothing there to refine.
     return (same & (~hit | flat))

@@ -149,7 +149,9 @@ class SimulatedLidar:
         ``rig_cast_once``: the whole ray table (every footprint sub-ray of every
         pattern) against the fixed rig, once; ``turning_cast``: rays cast against the
         turning parts (one per beam and line when ideal, the footprint's sub-rays
-        when realistic); ``sensor_model``: the range/intensity/noise model;
+        when realistic), of which ``culled`` could not reach them at any angle and
+        were resolved by a bounding-cylinder test without reaching the backend;
+        ``sensor_model``: the range/intensity/noise model;
         ``footprint_and_bookkeeping``: the rest of the line source's time
         (rotating rays, combining sub-rays, merging with the rig's hits).
         """
@@ -157,16 +159,17 @@ class SimulatedLidar:
         other_s = max(self.lines_s - c.cast_turning_s - self.sensor_model_s, 0.0)
 
         def phase(rays, seconds):
-            out = {"rays": int(rays), "s": seconds}
-            if rays and seconds > 0:
-                out["rays_per_s"] = round(rays / seconds)
+            # rays/s from the seconds as written, so the two agree however short the phase.
+            out = {"rays": int(rays), "s": round(seconds, 9)}
+            if rays and out["s"] > 0:
+                out["rays_per_s"] = round(rays / out["s"])
             return out
 
         return {"beams": int(self.n_beams_taken),
                 "rig_cast_once": phase(c.n_rays_fixed, c.cast_fixed_s),
-                "turning_cast": phase(c.n_rays_cast, c.cast_turning_s),
-                "sensor_model": {"s": self.sensor_model_s},
-                "footprint_and_bookkeeping": {"s": other_s}}
+                "turning_cast": {**phase(c.n_rays_cast, c.cast_turning_s), "culled": int(c.n_rays_culled)},
+                "sensor_model": {"s": round(self.sensor_model_s, 9)},
+                "footprint_and_bookkeeping": {"s": round(other_s, 9)}}
 
     def cast_lines(self, table_rad: np.ndarray, rng: np.random.Generator, *,
                    beam_time_s: np.ndarray | None = None, progress: Progress | None = None) -> Lines:
@@ -210,7 +213,7 @@ class SimulatedLidar:
     # --- the footprint --------------------------------------------------------
 
     def _combine(self, dist, geom, normal, dirs, weights):
-        cos = np.abs(np.einsum("...k,...k->...", normal, dirs))
+        cos = np.abs(normal[..., 0] * dirs[..., 0] + normal[..., 1] * dirs[..., 1] + normal[..., 2] * dirs[..., 2])
         refl = self.reflectance[self.scene.geom_class[geom]]
         ret = combine_footprint(dist, cos, refl, weights, range_max_m=self.lidar.range_max_m)
         dom = np.maximum(ret.dominant, 0)
@@ -229,8 +232,6 @@ class SimulatedLidar:
         variant = (rng.integers(self.n_variants, size=(n_lines, n_beams)) if self.n_variants > 1
                    else np.zeros((n_lines, n_beams), dtype=np.int64))
         first_id = (variant * n_beams + beams) * S  # the id of each footprint's sub-ray 0
-        origins = self.caster.origins_base.reshape(self.n_variants, n_beams, S, 3)
-        dirs = self.caster.dirs_base.reshape(self.n_variants, n_beams, S, 3)
         keys = ("range_m", "power", "cos_incidence", "spread_m")
         out = {k: np.full((n_lines, n_beams), np.nan) for k in keys}
         geom_out = np.full((n_lines, n_beams), -1, dtype=np.int32)
@@ -240,51 +241,52 @@ class SimulatedLidar:
             hi = min(lo + chunk, n_lines)
             c = hi - lo
             var = variant[lo:hi]
-            ids = (first_id[lo:hi, :, None] + probe[None, None, :]).reshape(c, -1)
-            th = theta[lo:hi] if theta.ndim == 1 else np.repeat(per_beam[lo:hi], len(probe), axis=1)
-            hits = self.caster.cast(ids, th, normals=True)
+            ids = first_id[lo:hi, :, None] + probe[None, None, :]
+            if theta.ndim == 1:  # one angle a line
+                hits = self.caster.cast(ids.reshape(c, -1), theta[lo:hi], normals=True)
+            else:  # one angle a beam: each beam's probes are a "line" of the caster
+                hits = self.caster.cast(ids.reshape(c * n_beams, -1), per_beam[lo:hi].reshape(-1), normals=True,
+                                        chunk_lines=c * n_beams)
             d = hits.dist_m.reshape(c, n_beams, len(probe))
             g = hits.geom_id.reshape(c, n_beams, len(probe))
             nrm = hits.normal_base.reshape(c, n_beams, len(probe), 3)
-            o_fp, d_fp = origins[var, beams], dirs[var, beams]  # (c, n_beams, S, 3)
+            # Only the probes' rays are gathered here ((c, n_beams, n_probe, 3)); a refined
+            # beam's whole footprint is gathered in _refine.
+            d_probe = self.caster.dirs_base[ids]
             if self.adaptive:
-                hit = o_fp[:, :, probe] + np.maximum(d, 0)[..., None] * d_fp[:, :, probe]
+                hit = self.caster.origins_base[ids] + np.maximum(d, 0)[..., None] * d_probe
                 refine = ~coplanar_probes(hit, nrm, g, tolerance_m=self.model.flat_tolerance_m)
                 # Flat footprints: the axis ray stands for the whole footprint.
-                ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1], d_fp[:, :, :1], np.ones(1))
+                ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1], d_probe[:, :, :1], np.ones(1))
             else:
                 refine = np.zeros((c, n_beams), dtype=bool)
-                ret, geom_dom = self._combine(d, g, nrm, d_fp, self.weights[var, beams])
+                ret, geom_dom = self._combine(d, g, nrm, d_probe, self.weights[var, beams])
             for k in keys:
                 out[k][lo:hi] = getattr(ret, k)
             geom_out[lo:hi] = geom_dom
             if refine.any():
-                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest, var, d_fp)
+                self._refine(out, geom_out, lo, refine, d, g, nrm, per_beam[lo:hi], probe, rest, var)
             if progress is not None:
                 progress(hi, n_lines)
         log.debug("footprint: %d of %d beams refined with %d sub-rays", self.n_refined, n_lines * n_beams, S)
         return FootprintReturn(dominant=None, **out), geom_out
 
-    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest, var, d_fp):
+    def _refine(self, out, geom_out, lo, refine, d, g, nrm, theta, probe, rest, var):
         """Casts the other sub-rays of the flagged beams and combines all of them."""
         S = self.n_sub
         n_beams = refine.shape[1]
         line_of, beam_of = np.nonzero(refine)
         self.n_refined += len(line_of)
-        counts = refine.sum(axis=1)
-        m = int(counts.max())
-        starts = np.cumsum(counts) - counts
-        pos = np.arange(len(line_of)) - np.repeat(starts, counts)
-        c, n_rest = refine.shape[0], len(rest)
+        n_rest = len(rest)
         variant = var[line_of, beam_of]
-        ids = np.full((c, m, n_rest), self.caster.pad_id, dtype=np.int64)
-        ids[line_of, pos] = ((variant * n_beams + beam_of) * S)[:, None] + rest[None, :]
-        th = np.zeros((c, m, n_rest))
-        th[line_of, pos] = theta[line_of, beam_of][:, None]
-        hits = self.caster.cast(ids.reshape(c, m * n_rest), th.reshape(c, m * n_rest), normals=True)
-        d2 = hits.dist_m.reshape(c, m, n_rest)[line_of, pos]
-        g2 = hits.geom_id.reshape(c, m, n_rest)[line_of, pos]
-        n2 = hits.normal_base.reshape(c, m, n_rest, 3)[line_of, pos]
+        # All the refined beams' other sub-rays in one flat selection, each at its beam's angle.
+        # (Each refined beam is a "line" of the caster: one angle for its n_rest sub-rays.)
+        first = (variant * n_beams + beam_of) * S  # the id of each refined footprint's sub-ray 0
+        ids = first[:, None] + rest[None, :]
+        hits = self.caster.cast(ids, theta[line_of, beam_of], normals=True, chunk_lines=max(len(ids), 1))
+        d2 = hits.dist_m.reshape(-1, n_rest)
+        g2 = hits.geom_id.reshape(-1, n_rest)
+        n2 = hits.normal_base.reshape(-1, n_rest, 3)
         k = len(line_of)
         dist = np.empty((k, S))
         geom = np.empty((k, S), dtype=np.int32)
@@ -292,7 +294,7 @@ class SimulatedLidar:
         dist[:, probe], geom[:, probe], normal[:, probe] = d[line_of, beam_of], g[line_of, beam_of], \
             nrm[line_of, beam_of]
         dist[:, rest], geom[:, rest], normal[:, rest] = d2, g2, n2
-        ret, geom_dom = self._combine(dist, geom, normal, d_fp[line_of, beam_of],
+        ret, geom_dom = self._combine(dist, geom, normal, self.caster.dirs_base[first[:, None] + np.arange(S)],
                                       self.weights[variant, beam_of])
         rows = lo + line_of
         for key in ("range_m", "power", "cos_incidence", "spread_m"):
