@@ -32,9 +32,6 @@ _CHECKLIST = (
     "Check that the servo is powered (12 V), that the baud rate and ID match the servo's "
     "Baud Rate and ID registers, and that the cable and USB adapter are connected."
 )
-# How long to wait for a late status after a lost one before discarding it: far longer
-# than a servo takes (Return Delay Time 0.5 ms) plus two 16 ms USB latency periods.
-_LATE_STATUS_S = 0.05
 # The SDK's status timeout (port_handler.setPacketTimeout): 2 x the 16 ms USB latency
 # timer + 2 ms + the packet's transmission time. A real servo answers within the Return
 # Delay Time (0.5 ms by default), so this is the floor of ``status_timeout_s``.
@@ -44,8 +41,10 @@ _SDK_LATENCY_MS = 2 * 16.0 + 2.0
 # an emulator in the same process needs to answer).
 _POLL_WAIT_S = 0.002
 # Resynchronisation markers: READs from address 0 of 8 .. 15 bytes (lengths no other
-# request of the driver uses; byte 7 of the answer is the servo's ID), at most 3 a resync.
-_MARKER_FIRST_LENGTH, _MARKER_LENGTHS, _RESYNC_MARKERS = 8, 8, 3
+# request of the driver uses; byte 7 of the answer is the servo's ID), one a resync (a
+# failed resync counts as a failed attempt of the request, whose next attempt sends
+# another marker, of another length).
+_MARKER_FIRST_LENGTH, _MARKER_LENGTHS = 8, 8
 # Attempts of a safety stop's torque-off write and read-back before it is reported
 # unconfirmed.
 _STOP_ATTEMPTS = 3
@@ -169,6 +168,7 @@ class DynamixelTurntable:
         self.firmware_version: int | None = None
         self._config: servo.ServoConfig | None = None
         self._operating_mode: int = 3
+        self._resync_failure = ""  # the SDK's text for the last resync's failure
         self._marker = 0  # the last resynchronisation marker sent (its length is 8 + this)
 
     # --- connection -------------------------------------------------------------------
@@ -291,14 +291,8 @@ class DynamixelTurntable:
                     self._mark_unsynced()
                     raise ServoCommunicationError(str(lost)) from None
                 _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
-                if not self.resync(raise_on_failure=False):
-                    # Not known to be in step: the next attempt resynchronises first.
-                    self._mark_unsynced()
-                if self._port is None:  # the port vanished while the status was awaited
-                    raise ServoCommunicationError(
-                        f"{what} on {self.port_name} ID {self.dxl_id}: the port failed after a lost status; "
-                        f"the adapter was unplugged or the port closed. {_CHECKLIST} Then call connect() again."
-                    ) from None
+                # Out of step until shown otherwise: the next attempt resynchronises first.
+                self._mark_unsynced()
         raise AssertionError("unreachable")
 
     def _mark_unsynced(self) -> None:
@@ -314,17 +308,17 @@ class DynamixelTurntable:
         status still owed. The marker is a READ from address 0 whose length (8 to
         15 bytes, a new one each time) no other request of the driver uses, and whose
         answer carries the servo's ID at byte 7: its status is told from any other by
-        its identity, not by when it comes. Every status before it is discarded; when
-        a marker's status does not come in time another is sent, and only the latest
-        one's status counts (an earlier one's would precede it). Also clears the
-        SDK's busy flag that an interrupted call leaves.
+        its identity, not by when it comes. Every status before it is discarded. When
+        the marker's status does not come in time, False: the bus is still out of
+        step, and the next resync's marker (another length) discards the stale one
+        too. Also clears the SDK's busy flag that an interrupted call leaves.
 
         Returns:
-            True when the latest marker's status arrived (the bus is in step).
+            True when the marker's status arrived (the bus is in step).
 
         Raises:
             ServoCommunicationError: when ``raise_on_failure`` and no marker status
-                arrived (3 markers, each waited for the protocol's status timeout).
+                arrived within the protocol's status timeout.
         """
         sdk = _sdk()
         with self._lock:
@@ -334,24 +328,21 @@ class DynamixelTurntable:
                 return False
             port = self._port
             port.is_using = False
-            deadline = time.monotonic() + 2 * (self._status_timeout_s + self.scheduler_allowance_s) + _LATE_STATUS_S
             discarded = 0
             try:
-                for _ in range(_RESYNC_MARKERS):  # a marker's own status may be lost too
-                    self._marker = (self._marker + 1) % _MARKER_LENGTHS
-                    length = _MARKER_FIRST_LENGTH + self._marker
-                    packet = [0] * 14
-                    packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 7, 0, sdk.INST_READ
-                    packet[8:12] = [0, 0, length & 0xFF, length >> 8]
-                    if self._packet.txPacket(port, packet) != sdk.COMM_SUCCESS:
-                        port.is_using = False
-                        continue
+                self._marker = (self._marker + 1) % _MARKER_LENGTHS
+                length = _MARKER_FIRST_LENGTH + self._marker
+                packet = [0] * 14
+                packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 7, 0, sdk.INST_READ
+                packet[8:12] = [0, 0, length & 0xFF, length >> 8]
+                if self._packet.txPacket(port, packet) == sdk.COMM_SUCCESS:
                     while True:
                         port.setPacketTimeout(11 + length)
                         rx, result = self._packet.rxPacket(port, False)
                         if result != sdk.COMM_SUCCESS:
+                            self._resync_failure = self._packet.getTxRxResult(result)
                             break
-                        # LEN = instruction + error + params + CRC.
+                        # LEN = instruction + error + params + CRC; the ID register is param 7.
                         if (rx[4] == self.dxl_id and rx[5] | (rx[6] << 8) == length + 4
                                 and rx[9 + 7] == self.dxl_id):
                             port.is_using = False
@@ -361,9 +352,7 @@ class DynamixelTurntable:
                                              discarded, self.dxl_id, self.port_name)
                             return True
                         discarded += 1
-                    port.is_using = False
-                    if time.monotonic() > deadline:
-                        break
+                port.is_using = False
             except _port_errors() as exc:
                 name = self.port_name
                 self._release_port()
@@ -384,12 +373,18 @@ class DynamixelTurntable:
             # A previous call did not return (Ctrl-C, a signal): its status may still be
             # on the way and the SDK's busy flag is set. Without this, every later
             # call, the safety stop's torque-off included, is refused "Port is in use!".
-            if not self.resync(raise_on_failure=False) and self._port is not None and not method.startswith("write"):
+            in_step = self.resync(raise_on_failure=False)
+            if self._port is None:  # the port vanished while a status was awaited
+                raise ServoCommunicationError(
+                    f"{what} on {self.port_name} ID {self.dxl_id}: the port failed after a lost status; "
+                    f"the adapter was unplugged or the port closed. {_CHECKLIST} Then call connect() again.")
+            if not in_step and not method.startswith("write"):
                 # Out of step, a read could be answered by a stale status: count it as
                 # lost (and retried). A write still goes out (a safety stop's torque-off
                 # must, whatever the bus's state); the servo runs it in order.
-                raise _LostStatus(f"{what} on {self.port_name} ID {self.dxl_id} failed: no status packet since a lost "
-                                  f"one, not even to a resynchronisation (the bus is out of step). {_CHECKLIST}")
+                raise _LostStatus(f"{what} on {self.port_name} ID {self.dxl_id} at {self.baud_bps} bps failed: "
+                                  f"{self._resync_failure} (while resynchronising after a lost status; not sent) "
+                                  f"{_CHECKLIST}")
         with self._lock:
             if self._port is None:
                 raise ServoCommunicationError(f"{what}: not connected; call connect() first")
@@ -579,7 +574,10 @@ class DynamixelTurntable:
             self.connect(self.port_name, baud_bps=self.baud_bps, dxl_id=self.dxl_id)
         self.resync(raise_on_failure=False)
         register = self.table["Torque Enable"]
-        self._call("emergency stop: write Torque Enable=0", "write1ByteTxRx", register.address, 0)
+        # No retries here: the callers (ServoTurntable.close, a SafeStop) repeat the
+        # whole stop and read the torque back, and nested retries would keep a user
+        # waiting minutes on a servo that has gone silent.
+        self._call("emergency stop: write Torque Enable=0", "write1ByteTxRx", register.address, 0, retry=False)
 
     # --- motion -------------------------------------------------------------------
 
