@@ -35,12 +35,14 @@ import time
 def run_tests(files: list[str]) -> tuple[bool, float, str, list[str]]:
     """Runs pytest once; returns (passed, seconds, summary line, failing tests with their reasons)."""
     start = time.perf_counter()
+    # A wide "terminal", so that pytest's summary keeps each failure's reason on its line.
+    env = dict(os.environ, COLUMNS="1000")
     result = subprocess.run([sys.executable, "-m", "pytest", "-q", "-rfE", *files, "-p", "no:cacheprovider"],
-                            capture_output=True, text=True)
+                            capture_output=True, text=True, env=env)
     elapsed = time.perf_counter() - start
     lines = result.stdout.splitlines()
     summary = [line for line in lines if " passed" in line or " failed" in line or " error" in line]
-    failed = [line[:300] for line in lines if line.startswith(("FAILED", "ERROR"))]
+    failed = [line[:600] for line in lines if line.startswith(("FAILED", "ERROR"))]
     return result.returncode == 0, elapsed, (summary[-1] if summary else f"pytest exit {result.returncode}"), failed
 
 

@@ -335,7 +335,10 @@ class DynamixelTurntable:
                 packet = [0] * 14
                 packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 7, 0, sdk.INST_READ
                 packet[8:12] = [0, 0, length & 0xFF, length >> 8]
-                if self._packet.txPacket(port, packet) == sdk.COMM_SUCCESS:
+                sent = self._packet.txPacket(port, packet)
+                if sent != sdk.COMM_SUCCESS:
+                    self._resync_failure = self._packet.getTxRxResult(sent)
+                else:
                     while True:
                         port.setPacketTimeout(11 + length)
                         rx, result = self._packet.rxPacket(port, False)
@@ -504,7 +507,8 @@ class DynamixelTurntable:
         the instruction arrives). The span may cross reserved bytes (read, ignored).
 
         Raises:
-            ValueError: for no names, or an unknown one (the message lists the registers).
+            ValueError: for no names.
+            KeyError: for a name the model lacks (the message lists the valid names).
         """
         if not names:
             raise ValueError("read_registers needs at least one register name")
