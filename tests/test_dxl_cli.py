@@ -45,6 +45,10 @@ def test_emulator_process_and_rig_ping(capsys):
         assert args.func(args) == 0
         out = capsys.readouterr().out
         assert "model: XM430-W350 (1020)" in out and "firmware: 46" in out and "position: 0.0000 rad" in out
+        # What a user reads on the rig, in SI units, from one read of the servo at rest.
+        assert "velocity: 0.0000 rad/s" in out and "temperature: 30 degC" in out
+        assert "input voltage: 12.0 V" in out and "load: 0.0 % (0.000 A)" in out
+        assert "torque: off" in out and "hardware errors: none" in out
         args = top.parse_args(["rig", "ping", "--port", port_path, "--id", "5"])
         assert args.func(args) == 1
         assert "error: ping on" in capsys.readouterr().err

@@ -21,20 +21,20 @@ CONFIG = servo.ServoConfig(
 
 @pytest.fixture
 def emulator():
-    with DynamixelEmulator(ids=(1,), speed_factor=10.0, load_inertia=0.002) as emu:
+    # The bus clock: simulated time advances with the exchanges, so a move takes the
+    # same number of polls and a fault lands at the same one however busy the machine.
+    with DynamixelEmulator(ids=(1,), clock="bus", load_inertia=0.002) as emu:
         yield emu
 
 
-# Status timeout, s: the SDK's own 34 ms is about 70 times what a servo needs, but
-# the emulator thread shares the machine with the tests and with whatever loads its
-# cores, and the scheduler can keep it waiting longer; 0.5 s is far beyond any delay
-# seen with both cores busy. Tests that expect a missing status lower it to the SDK's.
-STATUS_TIMEOUT_S = 0.5
-SDK_TIMEOUT_S = 0.034
+# Scheduler allowance on top of the protocol's status timeout, s: the emulator thread
+# shares the machine with the tests and whatever loads its cores. It costs nothing
+# while statuses come; tests that expect a missing status set it to 0.
+ALLOWANCE_S = 1.0
 
 
 def make_turntable(emulator, **options):
-    turntable = DynamixelTurntable(retries=2, status_timeout_s=STATUS_TIMEOUT_S, **options)
+    turntable = DynamixelTurntable(retries=2, scheduler_allowance_s=ALLOWANCE_S, **options)
     turntable.connect(emulator.port_path, baud_bps=57_600, dxl_id=1)
     return turntable
 
@@ -53,10 +53,10 @@ def test_connect_verifies_model_and_reads_firmware(turntable):
 
 
 def test_connect_refuses_another_model():
-    with DynamixelEmulator(model="xl430-w250") as emu:
+    with DynamixelEmulator(model="xl430-w250", clock="bus") as emu:
         with pytest.raises(ServoCommunicationError, match=r"model 1060 \(XL430-W250; pass model='xl430-w250'\)"):
-            DynamixelTurntable().connect(emu.port_path)
-        with DynamixelTurntable(model="xl430-w250") as table:
+            DynamixelTurntable(scheduler_allowance_s=ALLOWANCE_S).connect(emu.port_path)
+        with DynamixelTurntable(model="xl430-w250", scheduler_allowance_s=ALLOWANCE_S) as table:
             table.connect(emu.port_path)
             with pytest.raises(HardwareError, match="has no current sensor"):
                 table.current()
@@ -118,21 +118,39 @@ def test_move_to_validates_goal_and_torque(turntable):
 def test_move_times_out_with_position_in_message(emulator, turntable):
     turntable.configure(servo.ServoConfig(profile_velocity=0.5, profile_acceleration=5.0))
     turntable.torque_on()
-    with pytest.raises(ServoCommunicationError, match=r"did not reach 3.1416 rad within 0.05 s \(at"):
+    start = emulator.sim_time
+    with pytest.raises(ServoCommunicationError, match=r"did not reach 3.1416 rad within 0.05 s \(at 0\.0"):
         turntable.move_to(math.pi, timeout_s=0.05)
+    # Counted on the servo's clock: the move gave up 0.05 s (plus the setup reads and a
+    # poll, about 0.1 s of bus time; a status retried under load adds a few ms) into a
+    # 6 s move. On the wall clock it would have polled for an arbitrary simulated time.
+    assert 0.05 < emulator.sim_time - start < 0.3
+
+
+def test_move_timeout_counts_the_servos_clock_across_its_wrap(emulator, turntable):
+    """Realtime Tick wraps at 32768 ms: the timeout still counts 0.2 s across the wrap."""
+    turntable.configure(servo.ServoConfig(profile_velocity=0.5, profile_acceleration=5.0))
+    turntable.torque_on()
+    start = emulator.advance(32.7)  # the tick is 68 ms from its wrap
+    with pytest.raises(ServoCommunicationError, match=r"within 0.2 s"):
+        turntable.move_to(math.pi, timeout_s=0.2)
+    # 0.2 s and the setup's exchanges (about 0.24 s in all; a retried status adds a few
+    # ms): neither cut short at the wrap (a jump of 32.768 s) nor run on past it (a
+    # negative step) to the end of the 6 s move.
+    assert 0.2 < emulator.sim_time - start < 0.5 and emulator.sim_time > 32.768
 
 
 def test_no_reply_and_corrupt_crc_become_hardware_errors(emulator, turntable):
-    turntable.status_timeout_s = SDK_TIMEOUT_S  # every status is lost: no need to wait longer
+    turntable.scheduler_allowance_s = 0.0  # every status is lost: no need to wait longer
     emulator.inject_no_reply(1, count=None)
     with pytest.raises(ServoCommunicationError, match=r"read Present Position on /dev/pts/\d+ ID 1 .*no status"):
         turntable.position()
     emulator.clear_faults()
+    turntable.scheduler_allowance_s = ALLOWANCE_S  # a corrupt status comes: wait for it
     emulator.inject_corrupt_crc(1, count=None)
     with pytest.raises(ServoCommunicationError, match="Incorrect status packet"):
         turntable.position()
     emulator.clear_faults()
-    turntable.status_timeout_s = STATUS_TIMEOUT_S
     assert turntable.ping() == 1020  # the port is usable afterwards
 
 
@@ -160,9 +178,13 @@ def test_overload_mid_move_recovers_by_reboot_when_allowed(emulator, caplog):
         turntable.configure(CONFIG)
         turntable.torque_on()
         # 0.3 s of simulated time into a move of 1.7 s: mid-move however loaded the machine.
-        emulator.call_at(emulator.sim_time + 0.3, lambda: emulator.inject_hardware_error(1, OVERLOAD))
+        start = emulator.sim_time
+        fault_at = []
+        emulator.call_at(start + 0.3, lambda: (emulator.inject_hardware_error(1, OVERLOAD),
+                                               fault_at.append(emulator.servo(1).shaft.position)))
         final = turntable.move_to(3.0, timeout_s=30, tolerance_rad=4 * units.RAD_PER_TICK)
         assert "shut down during a move; rebooting" in caplog.text
+        assert 0.05 < fault_at[0] < 1.0  # the shutdown came mid-move, well short of the goal
         assert final == pytest.approx(3.0, abs=4 * units.RAD_PER_TICK)
         assert turntable.hardware_error_status() == 0
         # The configuration survived the reboot (RAM is reset by the firmware).

@@ -13,18 +13,20 @@ from plantsim.errors import ServoCommunicationError
 
 @pytest.fixture
 def emulator():
-    with DynamixelEmulator(ids=(1,)) as emu:
+    # The bus clock holds a late status until the host's next packet: late by
+    # construction, however long the scheduler keeps either thread waiting.
+    with DynamixelEmulator(ids=(1,), clock="bus") as emu:
         yield emu
 
 
-# The driver waits STATUS_TIMEOUT_S for a status (a margin for an emulator thread the
-# scheduler keeps waiting); the injected delay is beyond it, so the status is late.
-STATUS_TIMEOUT_S = 0.5
+# Scheduler allowance on the protocol's status timeout (for an emulator thread the
+# scheduler keeps waiting), s; a late status costs the driver one such wait.
+ALLOWANCE_S = 0.5
 LATE_S = 0.6
 
 
 def test_late_reply_does_not_become_the_next_answer(emulator):
-    with DynamixelTurntable(retries=0, status_timeout_s=STATUS_TIMEOUT_S) as driver:
+    with DynamixelTurntable(retries=0, scheduler_allowance_s=ALLOWANCE_S) as driver:
         driver.connect(emulator.port_path)
         driver.write_register("Homing Offset", 1000)
         emulator.inject_late_reply(1, delay_s=LATE_S)
@@ -35,7 +37,7 @@ def test_late_reply_does_not_become_the_next_answer(emulator):
 
 
 def test_late_reply_is_retried(emulator, caplog):
-    with DynamixelTurntable(retries=2, status_timeout_s=STATUS_TIMEOUT_S) as driver:
+    with DynamixelTurntable(retries=2, scheduler_allowance_s=ALLOWANCE_S) as driver:
         driver.connect(emulator.port_path)
         driver.write_register("Homing Offset", 1000)
         emulator.inject_late_reply(1, delay_s=LATE_S)
@@ -47,7 +49,7 @@ def test_late_reply_is_retried(emulator, caplog):
 
 def test_late_reply_of_the_same_length_is_discarded_not_taken(emulator, caplog):
     """Two reads of the same register: only the resync tells the late status from the answer."""
-    with DynamixelTurntable(retries=1, status_timeout_s=STATUS_TIMEOUT_S) as driver:
+    with DynamixelTurntable(retries=1, scheduler_allowance_s=ALLOWANCE_S) as driver:
         driver.connect(emulator.port_path)
         driver.write_register("Homing Offset", 1000)
         emulator.inject_late_reply(1, delay_s=LATE_S)
@@ -55,6 +57,22 @@ def test_late_reply_of_the_same_length_is_discarded_not_taken(emulator, caplog):
         driver.write_register("Homing Offset", 2000)
         assert driver.read_register("Homing Offset") == 2000  # not the late 1000
         assert "discarded 1 late status packet(s)" in caplog.text
+
+
+def test_late_reply_on_the_wall_clock_is_retried(caplog):
+    """On the wall clock the late status really leaves later than the driver waits.
+
+    Whenever it comes (the scheduler decides), no answer is taken from the wrong
+    request: every read below returns its own register.
+    """
+    with DynamixelEmulator(ids=(1,)) as emu, DynamixelTurntable(retries=3, scheduler_allowance_s=0.2) as driver:
+        driver.connect(emu.port_path)
+        driver.write_register("Homing Offset", 1000)
+        emu.inject_late_reply(1, delay_s=0.5)
+        assert driver.read_register("Homing Offset") == 1000
+        assert driver.read_register("Firmware Version") == 46
+        assert driver.read_register("Present Position") == 1000
+        assert driver.read_register("Model Number") == 1020
 
 
 def test_inject_late_reply_validates():

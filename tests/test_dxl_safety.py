@@ -20,10 +20,10 @@ from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 from plantsim.hardware.dynamixel.turntable import ServoStatus, ServoTurntable
 from plantsim.hardware.safety import SafeStop, StopAction
 
-# The margin for an emulator thread the scheduler keeps waiting (see test_dxl_driver).
-STATUS_TIMEOUT_S = 0.5
+# The scheduler allowance for an emulator thread the scheduler keeps waiting (see test_dxl_driver).
+ALLOWANCE_S = 1.0
 FAST = dict(retries=2, profile_velocity_rad_s=3.0, profile_acceleration_rad_s2=20.0,
-            driver_options={"status_timeout_s": STATUS_TIMEOUT_S})
+            driver_options={"scheduler_allowance_s": ALLOWANCE_S})
 WHERE = ("before_write", "after_write", "in_read", "after_call")
 
 
@@ -93,7 +93,7 @@ def ctrl_c_raises():
 
 @pytest.fixture
 def emulator():
-    with DynamixelEmulator(ids=(1,), speed_factor=10.0) as emu:
+    with DynamixelEmulator(ids=(1,), clock="bus") as emu:
         yield emu
 
 
@@ -182,7 +182,7 @@ def test_the_busy_port_left_by_an_interrupt_no_longer_refuses_torque_off(emulato
 
 def test_lost_link_is_reported_unconfirmed_in_one_line(monkeypatch):
     stream = io.StringIO()
-    with DynamixelEmulator(ids=(1,), speed_factor=10.0) as emulator:
+    with DynamixelEmulator(ids=(1,), clock="bus") as emulator:
         monkeypatch.setattr("plantsim.hardware.safety.time.sleep", no_sleep)
         with pytest.raises(Exception) as caught:
             with rig_safety(stream) as safety:

@@ -26,12 +26,18 @@ from plantsim.hardware.dynamixel.turntable import ServoTurntable
 from plantsim.turntable.table import SimulatedTurntable
 
 QUANTUM_RAD = units.RAD_PER_TICK  # 2 pi / 4096
-# A modest speed factor leaves CPU for the emulator to answer in time on a loaded
-# machine, and a brisk profile keeps the emulated moves short (the CLI's default is
-# gentler). A status can still miss the SDK's ~34 ms window now and then when the
-# machine is starved; retries cover that, as on a noisy bus.
-SPEED_FACTOR = 5.0
-FAST = dict(retries=5, profile_velocity_rad_s=3.0, profile_acceleration_rad_s2=20.0)
+# The emulator's bus clock: simulated time advances with the exchanges, so the scan
+# is the same exchange by exchange however busy the machine. A brisk profile keeps
+# the emulated moves short (the CLI's default is gentler). The scheduler allowance
+# covers an emulator thread kept waiting; a status later still is retried.
+CLOCK = "bus"
+ALLOWANCE_S = 0.5
+# After each move the shaft must hold its tick for 0.1 s of the servo's clock (what the
+# 20 ms default came to when this test ran the emulator on the wall clock at speed 5):
+# the integral gain then brings it within a tick of the goal, which the point
+# comparisons below count on.
+FAST = dict(retries=5, profile_velocity_rad_s=3.0, profile_acceleration_rad_s2=20.0, stable_interval_s=0.1,
+            driver_options={"scheduler_allowance_s": ALLOWANCE_S})
 
 
 def cylinder_config(tmp_path, name="cyl.ply", step_deg=10.0):
@@ -175,7 +181,7 @@ def test_session_validates_settle_time(tmp_path):
 
 @pytest.fixture
 def emulator():
-    with DynamixelEmulator(ids=(1,), speed_factor=SPEED_FACTOR) as emu:
+    with DynamixelEmulator(ids=(1,), clock=CLOCK) as emu:
         yield emu
 
 
@@ -267,7 +273,9 @@ def test_lost_reply_mid_scan_is_a_clear_error_then_resume_completes(tmp_path, em
         with pytest.raises(ScanInterruptedError, match=(
                 rf"on {emulator.port_path} ID 1 at 57600 bps failed: \[TxRxResult\] There is no status packet!.*"
                 r"Check that the servo is powered.*scan stopped at line 5 of 12.*4 complete lines are safe")):
-            run_rig_scan(config, table, progress=stop_after(4, lambda: emulator.inject_no_reply(1, count=None)))
+            # No status will come: no need to allow for the scheduler (each retry waits).
+            run_rig_scan(config, table, progress=stop_after(4, lambda: (
+                emulator.inject_no_reply(1, count=None), setattr(table.driver, "scheduler_allowance_s", 0.0))))
     emulator.clear_faults()
     with ServoTurntable.connect(emulator.port_path, **FAST) as table:
         resumed = run_rig_scan(config, table, resume=True)
@@ -281,13 +289,13 @@ def test_lost_reply_mid_scan_is_a_clear_error_then_resume_completes(tmp_path, em
 
 def test_unplugged_adapter_mid_scan_then_resume_on_a_new_port(tmp_path):
     config = cylinder_config(tmp_path, step_deg=30)
-    with DynamixelEmulator(ids=(1,), speed_factor=SPEED_FACTOR) as first:
+    with DynamixelEmulator(ids=(1,), clock=CLOCK) as first:
         with ServoTurntable.connect(first.port_path, **FAST) as table:
             with pytest.raises(ScanInterruptedError, match=rf"on {first.port_path} ID 1: the port failed.*"
                                r"connect\(\) again.*the 6 complete lines are safe"):
                 run_rig_scan(config, table, progress=stop_after(6, first.disconnect))
     # A replugged adapter (here: a new emulator) has a new port name; the journal still fits.
-    with DynamixelEmulator(ids=(1,), speed_factor=SPEED_FACTOR) as second:
+    with DynamixelEmulator(ids=(1,), clock=CLOCK) as second:
         with ServoTurntable.connect(second.port_path, **FAST) as table:
             resumed = run_rig_scan(config, table, resume=True)
     assert resumed.lines_resumed == 6 and resumed.raw.n_lines == 12

@@ -1,8 +1,7 @@
 """``plantsim rig scan`` end to end against an emulator in this process."""
 
 import json
-import threading
-import time
+import math
 
 import pytest
 import trimesh
@@ -10,11 +9,13 @@ import trimesh
 from plantsim.cli import app as cli
 from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 from plantsim.scan.journal import read_journal
+from plantsim.turntable import units
 
 
 @pytest.fixture
 def emulator():
-    with DynamixelEmulator(ids=(1,), speed_factor=5.0) as emu:
+    # The bus clock: the scan's exchanges, not the wall clock, move simulated time.
+    with DynamixelEmulator(ids=(1,), clock="bus") as emu:
         yield emu
 
 
@@ -27,7 +28,7 @@ def cylinder(tmp_path):
 
 def scan_args(emulator, cylinder, out, *extra):
     return ["rig", "scan", cylinder, "--port", emulator.port_path, "--baud", "57600", "--id", "1",
-            "--step-deg", "30", "-o", str(out), "--retries", "5", *extra]
+            "--step-deg", "30", "-o", str(out), "--retries", "5", "--status-timeout-ms", "300", *extra]
 
 
 def test_rig_scan_writes_cloud_and_sidecar_and_removes_the_journal(tmp_path, emulator, cylinder, capsys):
@@ -42,38 +43,34 @@ def test_rig_scan_writes_cloud_and_sidecar_and_removes_the_journal(tmp_path, emu
     assert out.exists() and not (tmp_path / "plant.ply.journal").exists()
 
 
-def inject_when_journal_has(emulator, journal, lines, fault):
-    """Injects a fault once the journal holds ``lines`` lines (polls the file)."""
+def inject_when_goal_reaches(emulator, goal_deg, fault):
+    """Injects ``fault`` once the servo is sent to ``goal_deg`` (checked every 5 ms of simulated time).
 
-    def watch():
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            if journal.exists():
-                try:
-                    if len(read_journal(journal).lines) >= lines:
-                        fault()
-                        return
-                except Exception:  # a record in the middle of being written
-                    pass
-            time.sleep(0.002)
+    On the bus clock this is a point of the scan, not of the wall clock: with 30 deg
+    steps, the goal 90 deg is the 4th line's, written after 3 lines are journaled.
+    """
+    goal_ticks = units.rad_to_ticks(math.radians(goal_deg))
 
-    thread = threading.Thread(target=watch, daemon=True)
-    thread.start()
-    return thread
+    def check():
+        if emulator.servo(1).get("Goal Position") >= goal_ticks:
+            fault()
+        else:
+            emulator.call_at(emulator.sim_time + 0.005, check)
+
+    emulator.call_at(0.0, check)
 
 
 def test_fault_exits_non_zero_with_how_to_resume_then_resume_completes(tmp_path, emulator, cylinder, capsys):
     out = tmp_path / "plant.las"
     journal = tmp_path / "plant.las.journal"
-    watcher = inject_when_journal_has(emulator, journal, 3, lambda: emulator.inject_no_reply(1, count=None))
+    inject_when_goal_reaches(emulator, 90, lambda: emulator.inject_no_reply(1, count=None))
     assert cli.main(scan_args(emulator, cylinder, out)) == 1
-    watcher.join(timeout=10)
     err = capsys.readouterr().err.strip().splitlines()
     assert f"on {emulator.port_path} ID 1" in err[0] and "no status packet" in err[0]
     assert err[-1] == (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and "
                        "run the same command again with --resume")
     done = len(read_journal(journal).lines)
-    assert 3 <= done < 12 and not out.exists()
+    assert done == 3 and not out.exists()
 
     emulator.clear_faults()
     assert cli.main(scan_args(emulator, cylinder, out)) == 2  # without --resume: refused

@@ -29,7 +29,7 @@ from test_dxl_safety import FAST, Tripwire, ctrl_c_raises, no_sleep, torque_on_i
 
 @pytest.fixture
 def emulator():
-    with DynamixelEmulator(ids=(1,), speed_factor=10.0) as emu:
+    with DynamixelEmulator(ids=(1,), clock="bus") as emu:
         yield emu
 
 

@@ -353,14 +353,14 @@ def run_rig_ping(args: argparse.Namespace) -> int:
 
     require_extra("dynamixel_sdk", "rig", "plantsim rig ping")  # one line, not a traceback
     from plantsim.hardware.dynamixel.driver import DynamixelTurntable
+    from plantsim.hardware.dynamixel.turntable import ServoTurntable
     from plantsim.errors import HardwareError
 
     try:
         with rig_safety(), DynamixelTurntable(model=args.model, **_driver_options(args)) as turntable:
             # Ping leaves the torque as it found it: no stop action to register.
             turntable.connect(args.port, baud_bps=args.baud_bps, dxl_id=args.dxl_id)
-            position = turntable.position()
-            status = turntable.hardware_error_status()
+            status = ServoTurntable(turntable).status()  # one read: one instant's values
     except HardwareError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -370,9 +370,13 @@ def run_rig_ping(args: argparse.Namespace) -> int:
     table = turntable.table
     print(f"model: {table.model_name} ({table.model_number})")
     print(f"firmware: {turntable.firmware_version}")
-    print(f"position: {position:.4f} rad")
-    if status:
-        print(f"hardware error: {', '.join(ct.hardware_error_names(status))}")
+    print(f"position: {status.position_rad:.4f} rad")
+    print(f"velocity: {status.velocity_rad_s:.4f} rad/s")
+    print(f"temperature: {status.temperature_c:.0f} degC")
+    print(f"input voltage: {status.input_voltage_v:.1f} V")
+    print(f"load: {status.load_percent:.1f} %" + (f" ({status.current_a:.3f} A)" if status.current_a is not None else ""))
+    print(f"torque: {'on' if status.torque_enabled else 'off'}{', moving' if status.moving else ''}")
+    print(f"hardware errors: {', '.join(status.hardware_errors) or 'none'}")
     return 0
 
 

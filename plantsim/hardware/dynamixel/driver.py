@@ -32,9 +32,6 @@ _CHECKLIST = (
     "Check that the servo is powered (12 V), that the baud rate and ID match the servo's "
     "Baud Rate and ID registers, and that the cable and USB adapter are connected."
 )
-# How long to wait for a late status after a lost one before discarding it: far longer
-# than a servo takes (Return Delay Time 0.5 ms) plus two 16 ms USB latency periods.
-_LATE_STATUS_S = 0.05
 # The SDK's status timeout (port_handler.setPacketTimeout): 2 x the 16 ms USB latency
 # timer + 2 ms + the packet's transmission time. A real servo answers within the Return
 # Delay Time (0.5 ms by default), so this is the floor of ``status_timeout_s``.
@@ -43,11 +40,23 @@ _SDK_LATENCY_MS = 2 * 16.0 + 2.0
 # port without sleeping; waiting in select instead frees the CPU (and the GIL, which
 # an emulator in the same process needs to answer).
 _POLL_WAIT_S = 0.002
+# Resynchronisation markers: READs from address 0 of 8 .. 15 bytes (lengths no other
+# request of the driver uses; byte 7 of the answer is the servo's ID), one a resync (a
+# failed resync counts as a failed attempt of the request, whose next attempt sends
+# another marker, of another length).
+_MARKER_FIRST_LENGTH, _MARKER_LENGTHS = 8, 8
 # Attempts of a safety stop's torque-off write and read-back before it is reported
 # unconfirmed.
 _STOP_ATTEMPTS = 3
-# Block read for polling a move: Moving (122) .. Present Position (132..135).
-_POLL_ADDRESS, _POLL_LENGTH = 122, 14
+# Block read for polling a move: Realtime Tick (120..121), Moving (122) .. Present
+# Position (132..135): the servo's own clock comes with every sample.
+_POLL_ADDRESS, _POLL_LENGTH = 120, 16
+# Realtime Tick wraps at 32768 ms (e-Manual, "Realtime Tick(120)").
+_TICK_PERIOD_MS = 32768
+#: The default scheduler allowance added to the protocol's status timeout, s: a host
+#: busy with other work (a scan writing files, a desktop) reads a status late by this
+#: much at most; a later status is discarded and the request retried.
+DEFAULT_SCHEDULER_ALLOWANCE_S = 0.05
 
 
 class _LostStatus(Exception):
@@ -64,20 +73,34 @@ def _sdk():
     return dynamixel_sdk
 
 
-def port_handler(port: str, *, status_timeout_s: float = _SDK_LATENCY_MS / 1e3):
-    """The SDK's ``PortHandler`` with a status timeout floor and a waiting (not spinning) read.
+def port_handler(port: str, *, status_timeout_s: float = _SDK_LATENCY_MS / 1e3,
+                 scheduler_allowance_s: float = 0.0):
+    """The SDK's ``PortHandler`` with protocol-derived status timeouts and a waiting (not spinning) read.
 
-    Its ``min_timeout_ms`` attribute (settable) is the least time the SDK waits for a
-    status, ms; the SDK's own timeout applies when longer.
+    The time it waits for a status is :func:`protocol.status_timeout_s`: the last
+    instruction's and the expected status's bytes at the port's baud, the servo's
+    Return Delay Time (attribute ``return_delay_s``, s; factory 500 us), two USB
+    latency periods, plus ``scheduler_allowance_s`` (attribute ``allowance_s``). Its
+    ``min_timeout_ms`` attribute (settable) is a floor, ms.
     """
     sdk = _sdk()
 
     class _PortHandler(sdk.PortHandler):
         min_timeout_ms = 1e3 * status_timeout_s
+        allowance_s = scheduler_allowance_s
+        return_delay_s = 250 * 2e-6  # factory Return Delay Time until the driver reads it
+        _instruction_bytes = 0
+
+        def writePort(self, packet):
+            self._instruction_bytes = len(packet)
+            return super().writePort(packet)
 
         def setPacketTimeout(self, packet_length):
-            super().setPacketTimeout(packet_length)
-            self.packet_timeout = max(self.packet_timeout, self.min_timeout_ms)
+            super().setPacketTimeout(packet_length)  # also starts the clock
+            derived_s = protocol.status_timeout_s(
+                self.baudrate, instruction_bytes=self._instruction_bytes, status_bytes=packet_length,
+                return_delay_s=self.return_delay_s, allowance_s=self.allowance_s)
+            self.packet_timeout = max(1e3 * derived_s, self.min_timeout_ms)
 
         def readPort(self, length):
             if length > 0 and self.ser is not None and not self.ser.in_waiting:
@@ -107,19 +130,28 @@ class DynamixelTurntable:
             writes are idempotent; 0 surfaces every lost packet. Before a retry the bus
             is resynchronised (see :meth:`resync`), so a late status is never taken
             for the answer to a later request.
-        status_timeout_s: the least time to wait for a status packet, s. The SDK's own
-            timeout (34 ms plus the packet's transmission time) is used when it is
-            longer. Raise it for a servo behind a slow link, or for an emulator on a
-            loaded machine, where a status can be delayed by the scheduler.
+        status_timeout_s: the least time to wait for a status packet, s (a floor
+            under the protocol-derived timeout; raise it for a servo behind a slow link).
+        scheduler_allowance_s: added to the protocol-derived status timeout (the
+            packets' bytes at the baud, the servo's Return Delay Time, two USB latency
+            periods; see :func:`protocol.status_timeout_s`), s: how late a host whose
+            cores are busy may read a status that did come in time. An emulator in
+            the same process needs more (its thread waits for the scheduler too).
+            Only a missing status costs it; a later one is discarded and retried.
     """
 
     def __init__(self, *, model: str = "xm430-w350", allow_reboot: bool = False, retries: int = 0,
-                 status_timeout_s: float = _SDK_LATENCY_MS / 1e3):
+                 status_timeout_s: float = _SDK_LATENCY_MS / 1e3,
+                 scheduler_allowance_s: float = DEFAULT_SCHEDULER_ALLOWANCE_S):
         if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
             raise ValueError(f"retries must be an integer >= 0, got {retries!r}")
         if isinstance(status_timeout_s, bool) or not isinstance(status_timeout_s, (int, float)) or not (
                 math.isfinite(status_timeout_s) and 0 < status_timeout_s <= 10):
             raise ValueError(f"status_timeout_s must be in (0, 10] s, got {status_timeout_s!r}")
+        if isinstance(scheduler_allowance_s, bool) or not isinstance(scheduler_allowance_s, (int, float)) or not (
+                math.isfinite(scheduler_allowance_s) and 0 <= scheduler_allowance_s <= 10):
+            raise ValueError(f"scheduler_allowance_s must be in [0, 10] s, got {scheduler_allowance_s!r}")
+        self._scheduler_allowance_s = float(scheduler_allowance_s)
         self.table = ct.control_table(model)
         self.allow_reboot = allow_reboot
         self.retries = retries
@@ -136,6 +168,8 @@ class DynamixelTurntable:
         self.firmware_version: int | None = None
         self._config: servo.ServoConfig | None = None
         self._operating_mode: int = 3
+        self._resync_failure = ""  # the SDK's text for the last resync's failure
+        self._marker = 0  # the last resynchronisation marker sent (its length is 8 + this)
 
     # --- connection -------------------------------------------------------------------
 
@@ -157,6 +191,20 @@ class DynamixelTurntable:
         if self._port is not None:
             self._port.min_timeout_ms = 1e3 * value
 
+    @property
+    def scheduler_allowance_s(self) -> float:
+        """Scheduler allowance added to the protocol-derived status timeout, s (settable)."""
+        return self._scheduler_allowance_s
+
+    @scheduler_allowance_s.setter
+    def scheduler_allowance_s(self, value: float) -> None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value) and 0 <= value <= 10):
+            raise ValueError(f"scheduler_allowance_s must be in [0, 10] s, got {value!r}")
+        self._scheduler_allowance_s = float(value)
+        if self._port is not None:
+            self._port.allowance_s = float(value)
+
     def connect(self, port: str, *, baud_bps: int = 57_600, dxl_id: int = 1) -> None:
         """Opens ``port``, pings ``dxl_id`` and verifies its model number.
 
@@ -173,7 +221,8 @@ class DynamixelTurntable:
             raise ValueError(f"dxl_id must be in [0, 252], got {dxl_id}")
         if self._port is not None:
             self.close()
-        handler = port_handler(port, status_timeout_s=self._status_timeout_s)
+        handler = port_handler(port, status_timeout_s=self._status_timeout_s,
+                               scheduler_allowance_s=self.scheduler_allowance_s)
         try:
             handler.openPort()
             if not handler.setBaudRate(baud_bps):
@@ -200,6 +249,8 @@ class DynamixelTurntable:
                 )
             self.firmware_version = self.read_register("Firmware Version")
             self._operating_mode = self.read_register("Operating Mode")
+            # The status timeout counts the servo's own delay before it answers.
+            self._port.return_delay_s = 2e-6 * self.read_register("Return Delay Time")
         except BaseException:  # a failure, or Ctrl-C: do not leave the port open and busy
             self.close()
             raise
@@ -240,12 +291,8 @@ class DynamixelTurntable:
                     self._mark_unsynced()
                     raise ServoCommunicationError(str(lost)) from None
                 _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
-                self.resync(raise_on_failure=False)
-                if self._port is None:  # the port vanished while the status was awaited
-                    raise ServoCommunicationError(
-                        f"{what} on {self.port_name} ID {self.dxl_id}: the port failed after a lost status; "
-                        f"the adapter was unplugged or the port closed. {_CHECKLIST} Then call connect() again."
-                    ) from None
+                # Out of step until shown otherwise: the next attempt resynchronises first.
+                self._mark_unsynced()
         raise AssertionError("unreachable")
 
     def _mark_unsynced(self) -> None:
@@ -257,16 +304,21 @@ class DynamixelTurntable:
         Protocol 2.0 status packets carry no sequence number, and the SDK takes the
         first status with the right ID as the answer: a late reply to a lost request
         would be read as the answer to the next one (wrong values, silently). The
-        servo answers in order, so a PING sent now is answered after any status still
-        owed; every status before the PING's (3 parameter bytes: model and firmware)
-        is discarded. Also clears the SDK's busy flag that an interrupted call leaves.
+        servo answers in order, so a marker request sent now is answered after every
+        status still owed. The marker is a READ from address 0 whose length (8 to
+        15 bytes, a new one each time) no other request of the driver uses, and whose
+        answer carries the servo's ID at byte 7: its status is told from any other by
+        its identity, not by when it comes. Every status before it is discarded. When
+        the marker's status does not come in time, False: the bus is still out of
+        step, and the next resync's marker (another length) discards the stale one
+        too. Also clears the SDK's busy flag that an interrupted call leaves.
 
         Returns:
-            True when the PING's status arrived (the bus is in step).
+            True when the marker's status arrived (the bus is in step).
 
         Raises:
-            ServoCommunicationError: when ``raise_on_failure`` and no PING status
-                arrived within ``2 * status_timeout_s`` + the late-status window.
+            ServoCommunicationError: when ``raise_on_failure`` and no marker status
+                arrived within the protocol's status timeout.
         """
         sdk = _sdk()
         with self._lock:
@@ -276,21 +328,26 @@ class DynamixelTurntable:
                 return False
             port = self._port
             port.is_using = False
-            deadline = time.monotonic() + 2 * self._status_timeout_s + _LATE_STATUS_S
             discarded = 0
             try:
-                for _ in range(3):  # the PING's own status may be lost too
-                    packet = [0] * 10
-                    packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 3, 0, sdk.INST_PING
-                    if self._packet.txPacket(port, packet) != sdk.COMM_SUCCESS:
-                        port.is_using = False
-                        continue
+                self._marker = (self._marker + 1) % _MARKER_LENGTHS
+                length = _MARKER_FIRST_LENGTH + self._marker
+                packet = [0] * 14
+                packet[4], packet[5], packet[6], packet[7] = self.dxl_id, 7, 0, sdk.INST_READ
+                packet[8:12] = [0, 0, length & 0xFF, length >> 8]
+                sent = self._packet.txPacket(port, packet)
+                if sent != sdk.COMM_SUCCESS:
+                    self._resync_failure = self._packet.getTxRxResult(sent)
+                else:
                     while True:
-                        port.setPacketTimeout(14)
+                        port.setPacketTimeout(11 + length)
                         rx, result = self._packet.rxPacket(port, False)
                         if result != sdk.COMM_SUCCESS:
+                            self._resync_failure = self._packet.getTxRxResult(result)
                             break
-                        if rx[4] == self.dxl_id and rx[5] | (rx[6] << 8) == 7:
+                        # LEN = instruction + error + params + CRC; the ID register is param 7.
+                        if (rx[4] == self.dxl_id and rx[5] | (rx[6] << 8) == length + 4
+                                and rx[9 + 7] == self.dxl_id):
                             port.is_using = False
                             self._interrupted = False
                             if discarded:
@@ -298,9 +355,7 @@ class DynamixelTurntable:
                                              discarded, self.dxl_id, self.port_name)
                             return True
                         discarded += 1
-                    port.is_using = False
-                    if time.monotonic() > deadline:
-                        break
+                port.is_using = False
             except _port_errors() as exc:
                 name = self.port_name
                 self._release_port()
@@ -312,7 +367,7 @@ class DynamixelTurntable:
                 raise
         if raise_on_failure:
             raise ServoCommunicationError(
-                f"servo ID {self.dxl_id} on {self.port_name} does not answer a PING after a lost status. "
+                f"servo ID {self.dxl_id} on {self.port_name} does not answer after a lost status. "
                 f"{_CHECKLIST}")
         return False
 
@@ -321,7 +376,18 @@ class DynamixelTurntable:
             # A previous call did not return (Ctrl-C, a signal): its status may still be
             # on the way and the SDK's busy flag is set. Without this, every later
             # call, the safety stop's torque-off included, is refused "Port is in use!".
-            self.resync(raise_on_failure=False)
+            in_step = self.resync(raise_on_failure=False)
+            if self._port is None:  # the port vanished while a status was awaited
+                raise ServoCommunicationError(
+                    f"{what} on {self.port_name} ID {self.dxl_id}: the port failed after a lost status; "
+                    f"the adapter was unplugged or the port closed. {_CHECKLIST} Then call connect() again.")
+            if not in_step and not method.startswith("write"):
+                # Out of step, a read could be answered by a stale status: count it as
+                # lost (and retried). A write still goes out (a safety stop's torque-off
+                # must, whatever the bus's state); the servo runs it in order.
+                raise _LostStatus(f"{what} on {self.port_name} ID {self.dxl_id} at {self.baud_bps} bps failed: "
+                                  f"{self._resync_failure} (while resynchronising after a lost status; not sent) "
+                                  f"{_CHECKLIST}")
         with self._lock:
             if self._port is None:
                 raise ServoCommunicationError(f"{what}: not connected; call connect() first")
@@ -431,6 +497,30 @@ class DynamixelTurntable:
         raw = units.to_unsigned(int(value), register.size) if register.signed else int(value)
         self._call(f"write {name}={value}", f"write{register.size}ByteTxRx", register.address, raw,
                    check_alert=register.name in ("Torque Enable", "Goal Position"))
+        if name == "Return Delay Time" and self._port is not None:
+            self._port.return_delay_s = 2e-6 * int(value)
+
+    def read_registers(self, *names: str) -> dict[str, int]:
+        """Reads several registers in one READ instruction spanning them; signed ones come back signed.
+
+        One exchange, so the values are one instant's (the servo samples them when
+        the instruction arrives). The span may cross reserved bytes (read, ignored).
+
+        Raises:
+            ValueError: for no names.
+            KeyError: for a name the model lacks (the message lists the valid names).
+        """
+        if not names:
+            raise ValueError("read_registers needs at least one register name")
+        registers = [self.table[name] for name in names]
+        start = min(r.address for r in registers)
+        length = max(r.address + r.size for r in registers) - start
+        data = bytes(self._call(f"read {names[0]}..{names[-1]}", "readTxRx", start, length))
+        values = {}
+        for r in registers:
+            raw = int.from_bytes(data[r.address - start : r.address - start + r.size], "little")
+            values[r.name] = units.to_signed(raw, r.size) if r.signed else raw
+        return values
 
     # --- configuration ------------------------------------------------------------
 
@@ -488,7 +578,10 @@ class DynamixelTurntable:
             self.connect(self.port_name, baud_bps=self.baud_bps, dxl_id=self.dxl_id)
         self.resync(raise_on_failure=False)
         register = self.table["Torque Enable"]
-        self._call("emergency stop: write Torque Enable=0", "write1ByteTxRx", register.address, 0)
+        # No retries here: the callers (ServoTurntable.close, a SafeStop) repeat the
+        # whole stop and read the torque back, and nested retries would keep a user
+        # waiting minutes on a servo that has gone silent.
+        self._call("emergency stop: write Torque Enable=0", "write1ByteTxRx", register.address, 0, retry=False)
 
     # --- motion -------------------------------------------------------------------
 
@@ -501,7 +594,8 @@ class DynamixelTurntable:
         Args:
             angle_rad: goal, rad (raw 0 = 0 rad). In position mode it must lie within
                 the position limits (0 .. 2 pi by default); nothing is wrapped.
-            timeout_s: wall-clock limit, s.
+            timeout_s: limit on the servo's own clock (Realtime Tick, read with every
+                poll), s: the move's duration, whatever the host's scheduling.
             tolerance_rad: accepted final error, rad.
 
         Returns:
@@ -542,15 +636,19 @@ class DynamixelTurntable:
                 self._raise_alarm("move")
             raise HardwareError(f"servo ID {self.dxl_id} has torque off; call torque_on() before move_to()")
         self.write_register("Goal Position", goal_ticks)
-        deadline = time.monotonic() + timeout_s
         tolerance_ticks = tolerance_rad / units.RAD_PER_TICK
+        elapsed_ms, last_tick = 0, None
         while True:
-            data = self._call("poll move", "readTxRx", _POLL_ADDRESS, _POLL_LENGTH, check_alert=True)
-            moving = data[0]
-            position_ticks = units.to_signed(int.from_bytes(bytes(data[10:14]), "little"), 4)
+            data = bytes(self._call("poll move", "readTxRx", _POLL_ADDRESS, _POLL_LENGTH, check_alert=True))
+            tick = int.from_bytes(data[0:2], "little")
+            moving = data[2]
+            position_ticks = units.to_signed(int.from_bytes(data[12:16], "little"), 4)
+            if last_tick is not None:
+                elapsed_ms += (tick - last_tick) % _TICK_PERIOD_MS
+            last_tick = tick
             if not moving and abs(position_ticks - goal_ticks) <= tolerance_ticks:
                 return units.ticks_to_rad(position_ticks)
-            if time.monotonic() > deadline:
+            if elapsed_ms > 1e3 * timeout_s:
                 raise ServoCommunicationError(
                     f"servo ID {self.dxl_id} did not reach {units.ticks_to_rad(goal_ticks):.4f} rad within "
                     f"{timeout_s} s (at {units.ticks_to_rad(position_ticks):.4f} rad, moving={moving}); "

@@ -20,15 +20,24 @@ instruction error; temperature and input voltage are constant; Drive Mode (rever
 time-based profile), Bus Watchdog and the Velocity Limit cap on the profile are not
 emulated; REBOOT is instantaneous.
 
-Timing: the SDK waits about 34 ms for a status. The emulator answers in about 1 ms,
-but on a machine whose cores are busy its thread can be kept waiting longer than that
-by the scheduler. Tests therefore (a) give the driver a longer status timeout
-(``DynamixelTurntable(status_timeout_s=0.5)``, or ``driver.port_handler`` for the raw
-SDK), which costs nothing while replies come, and (b) schedule faults on the
-emulator's simulated clock (:meth:`DynamixelEmulator.call_at`), not on wall-clock
-timers: simulated time advances only with the physics, so a fault lands at the same
-point of a move however late the emulator runs. Run the emulator in its own process
-(``plantsim emulator``) for the most faithful timing.
+Clocks. ``clock="wall"`` (the default, and ``plantsim emulator``): simulated time
+follows the wall clock times ``speed_factor``, as a real servo's does, so a program
+(or the URG emulator beside it) sees moves take their real time. ``clock="bus"``
+(for tests): simulated time advances only with the bus traffic, by what each
+exchange takes on a real bus: the host's turnaround (``host_gap_s``), the
+instruction's bytes at the port's baud (10 bits a byte), the Return Delay Time and
+the status's bytes; :meth:`DynamixelEmulator.advance` moves it on while the bus is
+idle. A move then takes the same number of exchanges, and a fault scheduled with
+:meth:`DynamixelEmulator.call_at` lands at the same exchange, however busy the
+machine is: nothing depends on how fast the emulator thread is scheduled. A late
+status (:meth:`DynamixelEmulator.inject_late_reply`) is held until the host's next
+packet, after the host gave up on it, which is what a late status is.
+
+What is left to the wall clock in both modes is the driver's wait for a status that
+does come: its timeout is a margin derived from the protocol plus a scheduler
+allowance (:class:`~plantsim.hardware.dynamixel.driver.DynamixelTurntable`'s
+``scheduler_allowance_s``), and a status that comes later still is discarded by the
+driver's resynchronisation and the request retried.
 
 Usage::
 
@@ -65,6 +74,11 @@ _IN_POSITION_TICKS = 10
 # Physics steps per loop iteration at most, so the port is served at least every
 # few hundred microseconds even when the simulation runs behind.
 _MAX_STEPS_PER_ITERATION = 10
+CLOCKS = ("wall", "bus")
+# Bits per byte on the bus: start bit, 8 data bits, stop bit (8N1).
+_BITS_PER_BYTE = 10
+# Instruction packet bytes besides the parameters: header 4, ID, length 2, instruction, CRC 2.
+_INSTRUCTION_OVERHEAD_BYTES = 10
 
 
 def _termios_bauds() -> dict[int, int]:
@@ -305,12 +319,23 @@ class DynamixelEmulator:
         load_inertia: inertia carried by each shaft, kg m^2.
         timestep: physics step, s.
         initial_position: shaft angle at start, rad.
+        clock: "wall" (simulated time follows the wall clock times
+            ``speed_factor``) or "bus" (it advances only with the bus traffic and
+            :meth:`advance`; ``speed_factor`` is then unused). See the module notes.
+        host_gap_s: with ``clock="bus"``, the simulated time the host takes between
+            two exchanges (its turnaround and polling), s.
     """
 
     def __init__(self, ids: Iterable[int] = (1,), *, model: str = "xm430-w350", baud_bps: int = 57_600,
                  speed_factor: float = 1.0, config: servo.ServoConfig | None = None,
-                 load_inertia: float = 0.0, timestep: float = 1e-3, initial_position: float = 0.0):
+                 load_inertia: float = 0.0, timestep: float = 1e-3, initial_position: float = 0.0,
+                 clock: str = "wall", host_gap_s: float = 0.002):
         ids = list(ids)
+        if clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {CLOCKS}, got {clock!r}")
+        if isinstance(host_gap_s, bool) or not isinstance(host_gap_s, (int, float)) or not (
+                math.isfinite(host_gap_s) and host_gap_s >= 0):
+            raise ValueError(f"host_gap_s must be finite and >= 0, got {host_gap_s!r}")
         if not ids or len(set(ids)) != len(ids) or not all(0 <= i <= protocol.MAX_ID for i in ids):
             raise ValueError(f"ids must be distinct integers in [0, 252], got {ids}")
         if not (math.isfinite(speed_factor) and speed_factor > 0):
@@ -322,6 +347,9 @@ class DynamixelEmulator:
         # Start from the factory registers, not from config's controller settings.
         config = config.with_registers({r.name: r.default for r in table if r.default is not None})
         self.speed_factor = speed_factor
+        self.clock = clock
+        self.host_gap_s = float(host_gap_s)
+        self._held_statuses: list[bytes] = []  # late statuses held until the host's next packet (bus clock)
         self._servos = [
             EmulatedServo(table, dxl_id=i, baud_bps=baud_bps, config=config, load_inertia=load_inertia,
                           timestep=timestep, initial_position=initial_position)
@@ -418,6 +446,38 @@ class DynamixelEmulator:
             _, _, action = self._scheduled.pop(0)
             action()
 
+    def advance(self, seconds: float) -> float:
+        """Moves simulated time on by ``seconds`` while the bus is idle (``clock="bus"`` only).
+
+        The shafts move and actions scheduled with :meth:`call_at` run at their time,
+        in this (the caller's) thread. Returns the new simulated time, s.
+
+        Raises:
+            ValueError: for a negative or non-finite ``seconds``.
+            RuntimeError: with ``clock="wall"``, where the wall clock drives time.
+        """
+        if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not (
+                math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f"seconds must be finite and >= 0, got {seconds!r}")
+        if self.clock != "bus":
+            raise RuntimeError("advance() needs DynamixelEmulator(clock='bus'); with clock='wall' the "
+                               "wall clock times speed_factor drives simulated time")
+        with self._lock:
+            self._advance_to(self._sim_time + seconds)
+            return self._sim_time
+
+    def _advance_to(self, t: float) -> None:
+        """Steps the shafts to simulated time ``t``, stopping at each scheduled action (lock held)."""
+        while True:
+            stop = min(t, self._scheduled[0][0]) if self._scheduled else t
+            if stop > self._sim_time:
+                self._sim_time = stop
+                for s in self._servos:
+                    s.advance(stop)
+            self._run_scheduled()
+            if self._sim_time >= t or self._disconnect.is_set():
+                return
+
     def inject_no_reply(self, dxl_id: int, *, count: int | None = 1) -> None:
         """The servo ignores the next ``count`` packets (None: until cleared), as if unplugged."""
         _check_count(count)
@@ -433,8 +493,11 @@ class DynamixelEmulator:
     def inject_late_reply(self, dxl_id: int, *, delay_s: float = 0.06, count: int = 1) -> None:
         """The servo's next ``count`` status packets leave ``delay_s`` late (the bus stalls meanwhile).
 
-        Later than the SDK's timeout (about 34 ms), such a status arrives while the
-        SDK waits for the answer to its next request.
+        Later than the driver's status timeout, such a status arrives while the
+        driver waits for the answer to its next request. With ``clock="bus"`` the
+        status is held until the host's next packet whatever ``delay_s`` (which then
+        only adds to simulated time): late by construction, not by a race with the
+        host's timeout.
         """
         _check_count(count)
         if count is None or not (math.isfinite(delay_s) and delay_s > 0):
@@ -476,25 +539,30 @@ class DynamixelEmulator:
         wall_start = time.perf_counter()
         sim_start = self._sim_time
         lagging = False
+        steps = 0
         try:
             while not self._stop.is_set() and not self._disconnect.is_set():
-                target = sim_start + (time.perf_counter() - wall_start) * self.speed_factor
-                with self._lock:
-                    timestep = self._servos[0].shaft.timestep
-                    steps = int((target - self._sim_time) / timestep)
-                    if steps > 100 * _MAX_STEPS_PER_ITERATION and not lagging:
-                        _log.warning("emulator runs slower than speed_factor=%s", self.speed_factor)
-                        lagging = True
-                    steps = min(steps, _MAX_STEPS_PER_ITERATION)
-                    if steps > 0:
-                        self._sim_time += steps * timestep
-                        for s in self._servos:
-                            s.advance(self._sim_time)
-                        self._run_scheduled()
-                if self._disconnect.is_set():
-                    break
-                # Serve the port between short physics chunks; sleep in select when idle.
-                readable, _, _ = select.select([self._master], [], [], 0.0 if steps > 0 else 0.0005)
+                if self.clock == "wall":
+                    target = sim_start + (time.perf_counter() - wall_start) * self.speed_factor
+                    with self._lock:
+                        timestep = self._servos[0].shaft.timestep
+                        steps = int((target - self._sim_time) / timestep)
+                        if steps > 100 * _MAX_STEPS_PER_ITERATION and not lagging:
+                            _log.warning("emulator runs slower than speed_factor=%s", self.speed_factor)
+                            lagging = True
+                        steps = min(steps, _MAX_STEPS_PER_ITERATION)
+                        if steps > 0:
+                            self._sim_time += steps * timestep
+                            for s in self._servos:
+                                s.advance(self._sim_time)
+                            self._run_scheduled()
+                    if self._disconnect.is_set():
+                        break
+                    # Serve the port between short physics chunks; sleep in select when idle.
+                    wait_s = 0.0 if steps > 0 else 0.0005
+                else:
+                    wait_s = 0.05  # bus clock: nothing to do until bytes come (or stop())
+                readable, _, _ = select.select([self._master], [], [], wait_s)
                 if readable:
                     try:
                         data = os.read(self._master, 4096)
@@ -505,6 +573,8 @@ class DynamixelEmulator:
                     if data:
                         for packet in self._parser.feed(data):
                             self._serve(packet)
+                            if self._disconnect.is_set():
+                                break
         except Exception:  # the thread must not die silently: log, then close the port
             _log.exception("Dynamixel emulator on %s crashed", self.port_path)
         finally:
@@ -515,30 +585,55 @@ class DynamixelEmulator:
                 # a client may still try to reopen the path (it finds no such file).
                 self._close_master()
 
+    def _bus_time_s(self, n_bytes: int, port_baud: int | None) -> float:
+        """Time ``n_bytes`` take on the bus at the port's baud (the servos' when it matches none), s."""
+        return n_bytes * _BITS_PER_BYTE / (port_baud or self._servos[0].baud_bps)
+
     def _serve(self, packet: protocol.Packet) -> None:
         if packet.is_status:
             return
+        bus = self.clock == "bus"
         with self._lock:
             port_baud = self._port_baud()
+            if bus:
+                # The host's turnaround, then the instruction on the wire.
+                self._advance_to(self._sim_time + self.host_gap_s + self._bus_time_s(
+                    _INSTRUCTION_OVERHEAD_BYTES + len(packet.params), port_baud))
+                if self._disconnect.is_set():
+                    return
+                # Statuses held back as late arrive now, after the host gave up on them.
+                held, self._held_statuses = self._held_statuses, []
+                for status in held:
+                    self._write(status)
             listening = [s for s in self._servos if s.baud_bps == port_baud]
             replies = self._dispatch(packet, listening)
         for s, error, params in replies:
             delay_s = s.get("Return Delay Time") * 2e-6
-            if s.late_count > 0:
+            late = s.late_count > 0
+            if late:
                 s.late_count -= 1
                 delay_s += s.late_s
-            if delay_s > 0:
-                time.sleep(delay_s)
             # The alert bit was taken when the instruction ran (a REBOOT clears it after).
             status = protocol.build_status(s.dxl_id, error, params)
             if s.corrupt_count is None or s.corrupt_count > 0:
                 status = status[:-1] + bytes([status[-1] ^ 0x5A])
                 if s.corrupt_count:
                     s.corrupt_count -= 1
-            try:
-                os.write(self._master, status)
-            except OSError:
-                _log.debug("status to %s lost: port closed", self.port_path)
+            if bus:
+                with self._lock:
+                    self._advance_to(self._sim_time + delay_s + self._bus_time_s(len(status), port_baud))
+                    if late:
+                        self._held_statuses.append(status)
+                        continue
+            elif delay_s > 0:
+                time.sleep(delay_s)
+            self._write(status)
+
+    def _write(self, status: bytes) -> None:
+        try:
+            os.write(self._master, status)
+        except OSError:
+            _log.debug("status to %s lost: port closed", self.port_path)
 
     def _dispatch(self, packet, listening):
         """Returns [(servo, error, params)] to send, in bus order."""

@@ -252,3 +252,44 @@ def describe_error(error: int) -> str:
         except ValueError:
             parts.append(f"unknown error code {code}")
     return "; ".join(parts)
+
+
+# --- timing ---------------------------------------------------------------------------
+
+#: Bits a byte takes on the bus: start bit, 8 data bits, stop bit (8N1).
+BITS_PER_BYTE = 10
+#: The USB serial adapter's latency timer (FTDI default 16 ms; the U2D2's too): a
+#: short status can sit in the adapter this long before the host sees it. The SDK
+#: allows two of them, plus 2 ms (``PortHandler.setPacketTimeout``).
+USB_LATENCY_TIMER_S = 0.016
+_SDK_EXTRA_S = 0.002
+
+
+def bus_time_s(n_bytes: int, baud_bps: int) -> float:
+    """Time ``n_bytes`` take on the wire at ``baud_bps`` (8N1), s."""
+    if n_bytes < 0 or baud_bps <= 0:
+        raise ValueError(f"n_bytes must be >= 0 and baud_bps > 0, got {n_bytes}, {baud_bps}")
+    return n_bytes * BITS_PER_BYTE / baud_bps
+
+
+def status_timeout_s(baud_bps: int, *, instruction_bytes: int, status_bytes: int, return_delay_s: float = 0.0,
+                     allowance_s: float = 0.0) -> float:
+    """How long a host should wait for a status packet, s: a margin derived from the protocol.
+
+    The instruction and the status on the wire at ``baud_bps``, the servo's Return
+    Delay Time between them, two USB latency periods and the SDK's 2 ms, plus
+    ``allowance_s`` for the host's scheduler (a busy machine, or an emulator thread
+    that shares its cores). A status later than this is late: the driver discards it
+    by resynchronising and retries the request.
+
+    Args:
+        baud_bps: the bus's baud rate.
+        instruction_bytes: length of the instruction packet, bytes.
+        status_bytes: length of the expected status packet, bytes.
+        return_delay_s: the servo's Return Delay Time (register 9, 2 us units), s.
+        allowance_s: scheduler allowance, s.
+    """
+    if return_delay_s < 0 or allowance_s < 0:
+        raise ValueError(f"return_delay_s and allowance_s must be >= 0, got {return_delay_s}, {allowance_s}")
+    return (bus_time_s(instruction_bytes + status_bytes, baud_bps) + return_delay_s
+            + 2 * USB_LATENCY_TIMER_S + _SDK_EXTRA_S + allowance_s)

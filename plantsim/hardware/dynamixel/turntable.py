@@ -15,6 +15,15 @@ from plantsim.turntable import units
 
 log = logging.getLogger(__name__)
 
+# Realtime Tick wraps at 32768 ms (e-Manual, "Realtime Tick(120)").
+_TICK_PERIOD_MS = 32768
+# Host pause between two reads while a finished move settles, s (not a measure of
+# time: the servo's clock is).
+_REST_POLL_S = 0.002
+# The span status() reads in one exchange: Torque Enable (64) .. Present Temperature (146).
+_STATUS_REGISTERS = ("Torque Enable", "Hardware Error Status", "Moving", "Present Velocity",
+                     "Present Position", "Present Input Voltage", "Present Temperature")
+
 _TORQUE_ADVICE = ("switch off the servo's 12 V supply now: the turntable may still be powered and "
                   "can hold or move the plant")
 
@@ -54,12 +63,13 @@ class ServoTurntable:
 
     Args:
       driver: a connected :class:`~plantsim.hardware.dynamixel.DynamixelTurntable`.
-      move_timeout_s: wall-clock limit of one move, s.
+      move_timeout_s: limit of one move on the servo's own clock (Realtime Tick), s.
       tolerance_rad: accepted final position error of a move, rad (default two
         encoder ticks: the factory P-only gains can stop a tick short against friction).
       stable_interval_s: after a move, the position must read the same tick twice
-        this far apart before the angle is reported (the servo clears its Moving
-        flag below 1.4 deg/s, while the shaft can still creep the last tick).
+        this far apart on the servo's clock before the angle is reported (the servo
+        clears its Moving flag below 1.4 deg/s, while the shaft can still creep the
+        last tick).
     """
 
     kinematic = False
@@ -76,6 +86,7 @@ class ServoTurntable:
         self.tolerance_rad = tolerance_rad
         self.stable_interval_s = stable_interval_s
         self._closed_safe = False  # close() confirmed the torque off
+        self._current_limit: int | None = None  # Current Limit register, read once by status()
 
     @classmethod
     def connect(cls, port: str, *, baud_bps: int = 57_600, dxl_id: int = 1, model: str = "xm430-w350",
@@ -137,20 +148,31 @@ class ServoTurntable:
                 "deg; use sweep_deg <= 360 (one turn in position mode)")
 
     def move_to(self, angle_rad: float) -> float:
-        deadline = time.monotonic() + self.move_timeout_s
         angle = self.driver.move_to(angle_rad, timeout_s=self.move_timeout_s, tolerance_rad=self.tolerance_rad)
+        # Judged on the servo's clock (Realtime Tick, read with the position in one
+        # exchange), not the host's: a host kept waiting by its scheduler must not
+        # take two reads a scheduler-delay apart for two reads stable_interval_s apart.
+        first = self._tick_and_position()
+        start_ms, since_ms = first[0], 0
+        reference_ms, reference_ticks = first
         while True:
-            time.sleep(self.stable_interval_s)
-            again = self.driver.position()
-            if again == angle:
-                return angle
-            if time.monotonic() > deadline:
+            time.sleep(_REST_POLL_S)
+            tick_ms, ticks = self._tick_and_position()
+            since_ms = (tick_ms - start_ms) % _TICK_PERIOD_MS
+            if ticks != reference_ticks:
+                reference_ms, reference_ticks = tick_ms, ticks
+            elif (tick_ms - reference_ms) % _TICK_PERIOD_MS >= 1e3 * self.stable_interval_s:
+                return units.ticks_to_rad(ticks)
+            if since_ms > 1e3 * self.move_timeout_s:
                 raise HardwareError(
                     f"servo ID {self.driver.dxl_id} on {self.driver.port_name} does not come to rest at "
-                    f"{angle_rad:.4f} rad (reads {angle:.4f}, then {again:.4f} rad after "
-                    f"{self.stable_interval_s} s) within {self.move_timeout_s} s; check for a loose "
-                    "coupling, a swinging load or too low a Position P Gain")
-            angle = again
+                    f"{angle_rad:.4f} rad (reached {angle:.4f}, now {units.ticks_to_rad(ticks):.4f} rad; not "
+                    f"the same tick for {self.stable_interval_s} s) within {self.move_timeout_s} s; check for a "
+                    "loose coupling, a swinging load or too low a Position P Gain")
+
+    def _tick_and_position(self) -> tuple[int, int]:
+        values = self.driver.read_registers("Realtime Tick", "Present Position")
+        return values["Realtime Tick"], values["Present Position"]
 
     def read_angle_rad(self) -> float:
         return self.driver.position()
@@ -202,13 +224,37 @@ class ServoTurntable:
         return self.driver.torque_enabled()
 
     def status(self) -> ServoStatus:
-        """Everything above in one record."""
+        """Everything above in one record, read in one exchange (one instant's values).
+
+        One READ spans Torque Enable (64) .. Present Temperature (146), 83 bytes: the
+        X series has no bulk read of scattered registers from one servo that the
+        emulator and every firmware answer (FAST_BULK_READ needs firmware 46+ and
+        still takes one span per ID). The XM430's Current Limit (EEPROM, for
+        ``load_percent``) is read once and kept; :meth:`invalidate` forgets it.
+        """
+        table = self.driver.table
+        names = _STATUS_REGISTERS + (("Present Current",) if "Present Current" in table else ("Present Load",))
+        raw = self.driver.read_registers(*names)
+        if "Present Current" in raw:
+            if self._current_limit is None:
+                self._current_limit = self.driver.read_register("Current Limit")
+            current_a = units.current_units_to_a(raw["Present Current"])
+            load_percent = (100.0 * raw["Present Current"] / self._current_limit if self._current_limit
+                            else math.nan)
+        else:
+            current_a, load_percent = None, 0.1 * raw["Present Load"]
         return ServoStatus(
-            position_rad=self.driver.position(), velocity_rad_s=self.velocity_rad_s(),
-            temperature_c=self.temperature_c(), input_voltage_v=self.input_voltage_v(),
-            current_a=self.current_a(), load_percent=self.load_percent(),
-            hardware_errors=self.hardware_errors(), torque_enabled=self.torque_enabled(),
-            moving=self.driver.read_register("Moving") == 1)
+            position_rad=units.ticks_to_rad(raw["Present Position"]),
+            velocity_rad_s=units.velocity_units_to_rad_s(raw["Present Velocity"]),
+            temperature_c=float(raw["Present Temperature"]),
+            input_voltage_v=0.1 * raw["Present Input Voltage"],
+            current_a=current_a, load_percent=load_percent,
+            hardware_errors=tuple(ct.hardware_error_names(raw["Hardware Error Status"])),
+            torque_enabled=raw["Torque Enable"] == 1, moving=raw["Moving"] == 1)
+
+    def invalidate(self) -> None:
+        """Forgets the cached Current Limit (call after writing it through the driver)."""
+        self._current_limit = None
 
     # --- safety -----------------------------------------------------------------------
 
