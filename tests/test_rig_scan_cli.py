@@ -28,7 +28,7 @@ def cylinder(tmp_path):
 
 def scan_args(emulator, cylinder, out, *extra):
     return ["rig", "scan", cylinder, "--port", emulator.port_path, "--baud", "57600", "--id", "1",
-            "--step-deg", "30", "-o", str(out), "--retries", "5", "--status-timeout-ms", "300", *extra]
+            "--step-deg", "30", "-o", str(out), "--retries", "5", "--status-timeout-ms", "1500", *extra]  # room for a starved emulator thread
 
 
 def test_rig_scan_writes_cloud_and_sidecar_and_removes_the_journal(tmp_path, emulator, cylinder, capsys):
