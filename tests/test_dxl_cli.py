@@ -55,3 +55,14 @@ def test_emulator_process_and_rig_ping(capsys):
     finally:
         process.send_signal(signal.SIGINT)
         assert process.wait(timeout=10) == 0
+
+
+def test_the_scheduler_allowance_reaches_the_driver_and_is_checked():
+    from plantsim.cli.rig import _driver_options
+
+    top, _ = parser()
+    args = top.parse_args(["rig", "ping", "--port", "/dev/null", "--scheduler-allowance-ms", "2000"])
+    assert _driver_options(args) == {"status_timeout_s": 0.034, "scheduler_allowance_s": 2.0}
+    args = top.parse_args(["rig", "ping", "--port", "/dev/null", "--scheduler-allowance-ms", "-5"])
+    with pytest.raises(ValueError, match=r"--scheduler-allowance-ms must be in \[0, 10000\], got -5"):
+        _driver_options(args)

@@ -251,7 +251,10 @@ def _driver_options(args: argparse.Namespace) -> dict:
     timeout_ms = args.status_timeout_ms
     if not (0 < timeout_ms <= 10_000):
         raise ValueError(f"--status-timeout-ms must be in (0, 10000], got {timeout_ms}")
-    return {"status_timeout_s": timeout_ms / 1e3}
+    allowance_ms = args.scheduler_allowance_ms
+    if not (0 <= allowance_ms <= 10_000):
+        raise ValueError(f"--scheduler-allowance-ms must be in [0, 10000], got {allowance_ms}")
+    return {"status_timeout_s": timeout_ms / 1e3, "scheduler_allowance_s": allowance_ms / 1e3}
 
 
 def _interrupt_name(exc: BaseException) -> str:
@@ -274,6 +277,9 @@ def _add_connection_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--status-timeout-ms", type=float, default=34.0, metavar="MS",
                         help="least time to wait for the servo's reply, ms (default: 34, the SDK's; raise it "
                         "for a slow USB adapter or an emulator on a busy machine)")
+    parser.add_argument("--scheduler-allowance-ms", type=float, default=50.0, metavar="MS",
+                        help="added to the reply time the protocol allows (bytes at the baud, Return Delay Time, "
+                        "USB latency), ms (default: 50; raise it on a host busy with other work)")
 
 
 def run_emulator(args: argparse.Namespace) -> int:
