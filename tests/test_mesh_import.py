@@ -1,7 +1,6 @@
 """Plant import: formats, units, up axis, placement, bad meshes, big meshes."""
 
 import logging
-import math
 
 import numpy as np
 import pytest

@@ -41,7 +41,7 @@ from typing import Callable
 import numpy as np
 
 from plantsim.errors import HardwareError, ScanInterruptedError
-from plantsim.scan.journal import Journal
+from plantsim.scan.journal import Journal, open_journal
 from plantsim.scan.raw import BeamGrid, RawScan
 from plantsim.scan.session import raw_from_lines, real_line
 from plantsim.turntable import units
@@ -426,12 +426,9 @@ def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, swe
     omega = servo_rpm(rpm) * 2 * math.pi / 60.0
     per_line_rad = omega * grid.scan_period_s
     n_lines = continuous_line_count(sweep_deg, rpm, grid.scan_period_s)
-    header = Journal.make_header(identity, n_lines=n_lines, n_beams=grid.n_beams, started_unix_s=time.time())
     journal_path = Path(journal_path)
-    if resume and not journal_path.exists():
-        log.warning("no journal at %s to resume; starting a new scan", journal_path)
-        resume = False
-    journal = Journal.resume(journal_path, header) if resume else Journal.create(journal_path, header)
+    journal = open_journal(journal_path, identity, n_lines=n_lines, n_beams=grid.n_beams,
+                           started_unix_s=time.time(), resume=resume)
     started = journal.header["started_unix_s"]
     servo = ContinuousServo(turntable)
     host_clock = source.host_clock
@@ -458,7 +455,6 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                      velocity_units: int, per_line_rad: float, sweep_rad: float, lead_in_rad: float,
                      host_clock, move_timeout_s: float, reading_timeout_s: float, progress) -> dict:
     path = journal.path
-    start = len(journal.lines)
     done = journal.encoder_readings()
     last_stamp_s = max([journal.lines[-1].stamp_ns / 1e9 if journal.lines else -1.0,
                         done["received_ns"].max() / 1e9 if len(done["received_ns"]) else -1.0])

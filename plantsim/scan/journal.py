@@ -421,3 +421,20 @@ def _fsync_dir(folder: Path) -> None:
         pass
     finally:
         os.close(fd)
+
+
+def open_journal(journal_path: str | os.PathLike, identity: dict, *, n_lines: int, n_beams: int,
+                 started_unix_s: float, resume: bool) -> Journal:
+    """A new journal, or (with ``resume``) the one at ``journal_path`` continued.
+
+    A ``resume`` with no journal there starts a new one, with a warning.
+
+    Raises:
+      JournalError: see :meth:`Journal.create` and :meth:`Journal.resume`.
+    """
+    header = Journal.make_header(identity, n_lines=n_lines, n_beams=n_beams, started_unix_s=started_unix_s)
+    journal_path = Path(journal_path)
+    if resume and not journal_path.exists():
+        log.warning("no journal at %s to resume; starting a new scan", journal_path)
+        resume = False
+    return Journal.resume(journal_path, header) if resume else Journal.create(journal_path, header)

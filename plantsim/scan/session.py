@@ -30,7 +30,7 @@ from typing import Callable
 import numpy as np
 
 from plantsim.errors import HardwareError, ScanInterruptedError
-from plantsim.scan.journal import Journal, JournalLine
+from plantsim.scan.journal import Journal, JournalLine, open_journal
 from plantsim.scan.raw import BeamGrid, RawScan, lidar_pose_of, s_to_ns
 from plantsim.scan.schedule import StepScan
 from plantsim.turntable.table import Turntable
@@ -83,12 +83,9 @@ def run_session(*, turntable: Turntable, source, grid: BeamGrid, schedule: StepS
     angles_rad = schedule.angles_rad()
     turntable.check_angles(angles_rad)
     n_lines = schedule.n_lines
-    header = Journal.make_header(identity, n_lines=n_lines, n_beams=grid.n_beams, started_unix_s=time.time())
     journal_path = Path(journal_path)
-    if resume and not journal_path.exists():
-        log.warning("no journal at %s to resume; starting a new scan", journal_path)
-        resume = False
-    journal = Journal.resume(journal_path, header) if resume else Journal.create(journal_path, header)
+    journal = open_journal(journal_path, identity, n_lines=n_lines, n_beams=grid.n_beams,
+                           started_unix_s=time.time(), resume=resume)
     started = journal.header["started_unix_s"]
     real = getattr(source, "kind", "simulated") == "urg"
     if real:
