@@ -120,3 +120,38 @@ def test_backend_calls_agree_with_mujoco_with_normals(lite, monkeypatch):
     assert np.isin(turning.geom_id[turning.geom_id >= 0], [scene.model.geom("disk").id,
                                                           scene.model.geom("plant").id]).all()
     assert turning.normal_base is None
+
+
+def test_embree_threads_give_the_hits_of_one_thread():
+    """Rays split over threads (blocks of MIN_RAYS_PER_THREAD or more) hit exactly as on one thread."""
+    plant = load_plant(bundled_plant_path("maize"))
+    scene = build_scene(RigGeometry(), plant)
+    one, four = embree.EmbreeBackend(scene, nthread=1), embree.EmbreeBackend(scene, nthread=4)
+    rng = np.random.default_rng(5)
+    n = 5 * embree.EmbreeBackend.MIN_RAYS_PER_THREAD + 17  # four blocks of unequal ends
+    origins = np.column_stack([np.full(n, 0.35), rng.uniform(-0.05, 0.05, n), rng.uniform(0.0, 0.5, n)])
+    dirs = np.column_stack([-np.ones(n), rng.uniform(-0.3, 0.3, n), rng.uniform(-0.3, 0.3, n)])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    a = one.cast_turning(origins, dirs, normals=True)
+    b = four.cast_turning(origins, dirs, normals=True)
+    assert four._pool is not None and one._pool is None  # the split did happen
+    assert (a.geom_id >= 0).sum() > n // 10
+    np.testing.assert_array_equal(a.dist_m, b.dist_m)
+    np.testing.assert_array_equal(a.geom_id, b.geom_id)
+    np.testing.assert_array_equal(a.normal_base, b.normal_base)
+
+
+def test_row_gather_and_scatter_are_fancy_indexing():
+    rng = np.random.default_rng(2)
+    table = rng.normal(size=(50, 3))
+    index = rng.integers(0, 50, size=(4, 7))
+    np.testing.assert_array_equal(casting.take_rows(table, index), table[index])
+    got, want = np.zeros((60, 3)), np.zeros((60, 3))
+    where = rng.choice(60, size=20, replace=False)
+    rows = rng.normal(size=(20, 3))
+    casting.put_rows(got, where, rows)
+    want[where] = rows
+    np.testing.assert_array_equal(got, want)
+    strided = np.zeros((60, 6))[:, ::2]  # not contiguous: plain fancy assignment
+    casting.put_rows(strided, where, rows)
+    np.testing.assert_array_equal(strided, want)

@@ -192,6 +192,28 @@ def make_backend(scene: Scene, name: str = "mujoco", *, nthread: int | None = No
     return MujocoBackend(scene, nthread=nthread)
 
 
+def take_rows(table: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``table[index]`` for a (n, ...) table and an int index of any shape (the same values).
+
+    ``np.take`` along axis 0 gathers rows of a small last axis (points, normals) about
+    3x faster than fancy indexing.
+    """
+    return np.take(table, index, axis=0)
+
+
+def put_rows(table: np.ndarray, index: np.ndarray, rows: np.ndarray) -> None:
+    """``table[index] = rows`` for a C-contiguous (n, 3) float64 table (the same values).
+
+    The rows are scattered as 24-byte records, about twice as fast as fancy assignment.
+    """
+    rows = np.ascontiguousarray(rows, dtype=np.float64)
+    if table.dtype != np.float64 or table.ndim != 2 or table.shape[1] != 3 or not table.flags.c_contiguous:
+        table[index] = rows
+        return
+    record = np.dtype((np.void, 24))
+    table.view(record).reshape(-1)[index] = rows.reshape(-1, 3).view(record).reshape(-1)
+
+
 def rotate_z(vectors: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
     """Rotates (..., 3) vectors about +Z by (...) angles (right hand)."""
     return _turn(vectors, np.cos(angle_rad), np.sin(angle_rad))
@@ -367,7 +389,7 @@ class Caster:
         # The rig's hits first; the turning geoms' hits replace them where nearer.
         dist = self._fixed_dist[ids]
         geom = self._fixed_geom[ids]
-        normal = self._fixed_normal[ids] if normals else None
+        normal = take_rows(self._fixed_normal, ids) if normals else None
         flat_dist, flat_geom = dist.reshape(-1), geom.reshape(-1)
         flat_normal = normal.reshape(-1, 3) if normals else None
         for lo in range(0, n_lines, chunk_lines):
@@ -381,8 +403,8 @@ class Caster:
             else:
                 th = theta[lo:hi].reshape(-1)[at]
                 c, s = np.cos(th), np.sin(th)
-            o = _turn(self._origins[chosen], c, -s)
-            d = _turn(self._dirs[chosen], c, -s)
+            o = _turn(take_rows(self._origins, chosen), c, -s)
+            d = _turn(take_rows(self._dirs, chosen), c, -s)
             t = time.perf_counter()
             hits = self.backend.cast_turning(o, d, normals=normals)
             self.cast_turning_s += time.perf_counter() - t
@@ -397,7 +419,7 @@ class Caster:
             flat_geom[where] = hits.geom_id[nearer]
             if normals:
                 # Back from the turntable frame to the base frame.
-                flat_normal[where] = _turn(hits.normal_base[nearer], c[nearer], s[nearer])
+                put_rows(flat_normal, where, _turn(take_rows(hits.normal_base, nearer), c[nearer], s[nearer]))
             if progress is not None:
                 progress(hi, n_lines)
         return Hits(dist, geom, normal)

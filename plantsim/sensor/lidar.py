@@ -27,7 +27,7 @@ import numpy as np
 from plantsim.rig.geometry import beam_dirs_lidar
 from plantsim.rig.scene import Scene
 from plantsim.sensor import casting
-from plantsim.sensor.casting import Backend, Caster, Progress, gate_ranges
+from plantsim.sensor.casting import Backend, Caster, Progress, gate_ranges, take_rows
 from plantsim.sensor.footprint import (FootprintReturn, coplanar_probes, combine_footprint, jitter_subrays,
                                       subray_pattern, subrays_lidar)
 from plantsim.sensor.model import SensorModel, apply_sensor
@@ -252,9 +252,9 @@ class SimulatedLidar:
             nrm = hits.normal_base.reshape(c, n_beams, len(probe), 3)
             # Only the probes' rays are gathered here ((c, n_beams, n_probe, 3)); a refined
             # beam's whole footprint is gathered in _refine.
-            d_probe = self.caster.dirs_base[ids]
+            d_probe = take_rows(self.caster.dirs_base, ids)
             if self.adaptive:
-                hit = self.caster.origins_base[ids] + np.maximum(d, 0)[..., None] * d_probe
+                hit = take_rows(self.caster.origins_base, ids) + np.maximum(d, 0)[..., None] * d_probe
                 refine = ~coplanar_probes(hit, nrm, g, tolerance_m=self.model.flat_tolerance_m)
                 # Flat footprints: the axis ray stands for the whole footprint.
                 ret, geom_dom = self._combine(d[:, :, :1], g[:, :, :1], nrm[:, :, :1], d_probe[:, :, :1], np.ones(1))
@@ -294,7 +294,7 @@ class SimulatedLidar:
         dist[:, probe], geom[:, probe], normal[:, probe] = d[line_of, beam_of], g[line_of, beam_of], \
             nrm[line_of, beam_of]
         dist[:, rest], geom[:, rest], normal[:, rest] = d2, g2, n2
-        ret, geom_dom = self._combine(dist, geom, normal, self.caster.dirs_base[first[:, None] + np.arange(S)],
+        ret, geom_dom = self._combine(dist, geom, normal, take_rows(self.caster.dirs_base, first[:, None] + np.arange(S)),
                                       self.weights[variant, beam_of])
         rows = lo + line_of
         for key in ("range_m", "power", "cos_incidence", "spread_m"):
