@@ -78,3 +78,38 @@ def test_culling_gives_the_hits_of_casting_every_ray(model):
             else:
                 np.testing.assert_array_equal(x, y, err_msg=field)
     assert (culled[0].hit_class == 1).sum() > 50  # the plant was seen
+
+
+def test_a_thin_disk_is_bounded_by_its_thickness_not_its_diameter():
+    scene = box_scene()
+    model = scene.model
+    disk = model.geom("disk").id
+    only_disk = np.arange(model.ngeom) == disk
+    radius, z_min, z_max = turning_bounds(scene, geoms=only_disk)
+    half_height = float(model.geom_size[disk][1])
+    # A cylinder geom on the axis: its bounding sphere's radius (the tighter in XY), and its
+    # thickness in Z (its bounding box's, not the sphere's).
+    assert float(model.geom_size[disk][0]) < radius <= float(model.geom_rbound[disk]) + 2e-6
+    assert z_max - z_min == pytest.approx(2 * half_height, abs=4e-6)
+    assert z_max - z_min < 0.5 * radius
+
+
+@pytest.mark.parametrize("model", [None, SensorModel(footprint_rings=1)], ids=["ideal", "realistic"])
+def test_primitive_culling_gives_the_hits_of_casting_every_ray_on_the_disk(model):
+    embree = pytest.importorskip("plantsim.sensor.embree")
+    if not embree.embree_available():
+        pytest.skip("embreex is not installed (pip install 'plantsim[fast]')")
+    scene = box_scene()
+    source = SimulatedLidar(scene, URG_04LX_UG01, ANGLES, model=model, backend=embree.EmbreeBackend(scene))
+    caster = source.caster
+    near = caster._may_hit_primitives[:-1]
+    assert 0.0 < near.mean() < 0.5  # most rays cannot reach the disk
+    theta = np.radians(np.arange(0, 360, 15.0))
+    culled = source.cast_lines(theta, np.random.default_rng(3))
+    caster._may_hit_primitives = None  # MuJoCo casts every ray against the disk
+    every = source.cast_lines(theta, np.random.default_rng(3))
+    for field in culled._fields:
+        x, y = getattr(culled, field), getattr(every, field)
+        if x is not None:
+            np.testing.assert_array_equal(x, y, err_msg=field)
+    assert (culled.geom_id == scene.model.geom("disk").id).sum() > 50  # the disk was seen

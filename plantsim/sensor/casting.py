@@ -93,7 +93,15 @@ class Hits(NamedTuple):
 
 
 class Backend(Protocol):
-    """What a ray-casting backend does (MuJoCo's is the reference)."""
+    """What a ray-casting backend does (MuJoCo's is the reference).
+
+    A backend that casts the turning primitives apart from the turning meshes may
+    also have ``primitive_bounds`` (a :func:`turning_bounds` cylinder holding those
+    primitives) and accept ``cast_turning(..., reach_primitives=mask)``: the
+    :class:`Caster` then passes which rays may reach that cylinder (known per ray
+    of its table, since the cylinder is about the axis), and the backend casts
+    the primitives for those alone.
+    """
 
     name: str
 
@@ -229,18 +237,23 @@ def _turn(vectors: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
     return out
 
 
-def turning_bounds(scene: Scene, *, margin_m: float = 1e-6) -> tuple[float, float, float]:
+def turning_bounds(scene: Scene, *, margin_m: float = 1e-6, geoms: np.ndarray | None = None
+                   ) -> tuple[float, float, float]:
     """A cylinder about the turntable axis holding every turning geom at every angle.
 
     The table turns about the base frame's Z axis (the hinge at 0 puts the
     turntable frame on the base frame), so a cylinder about that axis holds the
     turning geoms at every angle if it holds them at one: a ray that misses it
     misses them at any turntable angle. Mesh geoms are bounded by their
-    vertices, other geoms by their bounding spheres (``geom_rbound``).
+    vertices, other geoms by the tighter of two coaxial cylinders that both hold
+    them (their intersection holds them too): the one about their bounding sphere
+    (``geom_rbound``) and the one about the corners of their bounding box
+    (``geom_aabb``), so a thin disk gets its thickness, not its diameter, in Z.
 
     Args:
       scene: the compiled scene.
       margin_m: added to the radius and both ends.
+      geoms: (ngeom,) bool, the turning geoms to bound (default: all of them).
 
     Returns:
       (radius_m, z_min_m, z_max_m), base frame; (0, 0, -1) (an empty cylinder)
@@ -250,8 +263,10 @@ def turning_bounds(scene: Scene, *, margin_m: float = 1e-6) -> tuple[float, floa
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
     cast = np.isin(model.geom_group, np.nonzero(CAST_GEOMGROUP)[0])
+    chosen = turning_geoms(scene) if geoms is None else (np.asarray(geoms, dtype=bool) & turning_geoms(scene))
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
     radius, z_min, z_max = 0.0, np.inf, -np.inf
-    for g in np.nonzero(turning_geoms(scene) & cast)[0]:
+    for g in np.nonzero(chosen & cast)[0]:
         pos, rot = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)
         if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_dataid[g] >= 0:
             mesh = model.geom_dataid[g]
@@ -265,8 +280,15 @@ def turning_bounds(scene: Scene, *, margin_m: float = 1e-6) -> tuple[float, floa
             rb = float(model.geom_rbound[g])
             if not rb > 0:  # a plane or an unbounded geom: no cylinder holds it
                 return np.inf, -np.inf, np.inf
-            radius = max(radius, float(np.hypot(pos[0], pos[1])) + rb)
-            z_min, z_max = min(z_min, pos[2] - rb), max(z_max, pos[2] + rb)
+            r, lo, hi = float(np.hypot(pos[0], pos[1])) + rb, pos[2] - rb, pos[2] + rb
+            box = model.geom_aabb[g]
+            if np.all(np.isfinite(box)):
+                corners = (box[:3] + box[3:] * signs) @ rot.T + pos
+                pad = 1e-9 * (1.0 + float(np.abs(corners).max()))
+                r = min(r, float(np.hypot(corners[:, 0], corners[:, 1]).max()) + pad)
+                lo, hi = max(lo, float(corners[:, 2].min()) - pad), min(hi, float(corners[:, 2].max()) + pad)
+            radius = max(radius, r)
+            z_min, z_max = min(z_min, lo), max(z_max, hi)
     if z_max < z_min:
         return 0.0, 0.0, -1.0
     return radius + margin_m, z_min - margin_m, z_max + margin_m
@@ -359,6 +381,14 @@ class Caster:
         reach = rays_may_reach(self.origins_base, self.dirs_base, turning_bounds(scene),
                                np.where(fixed.dist_m >= 0, fixed.dist_m, np.inf))
         self._may_hit = np.append(reach, False)
+        # A backend that casts the turning primitives apart (Embree: MuJoCo on the disk) casts
+        # there only the rays that may reach them (a bounding cylinder, rotation-invariant).
+        self._may_hit_primitives = None
+        bounds = getattr(self.backend, "primitive_bounds", None)
+        if bounds is not None:
+            near = rays_may_reach(self.origins_base, self.dirs_base, bounds,
+                                  np.where(fixed.dist_m >= 0, fixed.dist_m, np.inf))
+            self._may_hit_primitives = np.append(near, False)
         self.n_rays_cast = 0
         self.n_rays_culled = 0
 
@@ -406,7 +436,11 @@ class Caster:
             o = _turn(take_rows(self._origins, chosen), c, -s)
             d = _turn(take_rows(self._dirs, chosen), c, -s)
             t = time.perf_counter()
-            hits = self.backend.cast_turning(o, d, normals=normals)
+            if self._may_hit_primitives is None:
+                hits = self.backend.cast_turning(o, d, normals=normals)
+            else:
+                hits = self.backend.cast_turning(o, d, normals=normals,
+                                                 reach_primitives=self._may_hit_primitives[chosen])
             self.cast_turning_s += time.perf_counter() - t
             n_selected = sel.size - int(np.count_nonzero(sel == self.pad_id))
             self.n_rays_cast += n_selected

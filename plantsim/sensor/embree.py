@@ -35,7 +35,8 @@ import numpy as np
 
 from plantsim.errors import PlantSimError
 from plantsim.rig.scene import Scene, build_scene
-from plantsim.sensor.casting import _HIDDEN_GROUP, Hits, MujocoBackend, put_rows, take_rows, turning_geoms
+from plantsim.sensor.casting import (_HIDDEN_GROUP, Hits, MujocoBackend, put_rows, take_rows, turning_bounds,
+                                     turning_geoms)
 
 
 def embree_available() -> bool:
@@ -78,6 +79,9 @@ class EmbreeBackend:
             geom_of.append(np.full(nf, g, dtype=np.int32))
             n_vertices += nv
         self.geom_of_triangle = np.concatenate(geom_of) if geom_of else np.zeros(0, np.int32)
+        # The cylinder about the axis that holds the turning geoms MuJoCo casts (the disk): a
+        # caster that knows which of its rays cannot reach it passes ``reach_primitives``.
+        self.primitive_bounds = turning_bounds(scene, geoms=~np.isin(np.arange(model.ngeom), mesh_geoms))
         self.nthread = nthread or max(1, os.cpu_count() or 1)
         self._pool = None  # made on first use: a backend that never casts in parallel starts no threads
         self._embree = None
@@ -134,14 +138,34 @@ class EmbreeBackend:
                    for lo, hi in zip(edges[:-1], edges[1:])]
         return lambda: np.concatenate([f.result() for f in futures])
 
-    def cast_turning(self, origins, dirs, *, normals=False) -> Hits:
+    def _cast_primitives(self, origins, dirs, normals, reach) -> Hits:
+        if reach is None:
+            return self._full_ids(self._mujoco.cast_turning(origins, dirs, normals=normals))
+        n = len(origins)
+        sub = np.flatnonzero(reach)
+        dist, geom = np.full(n, -1.0), np.full(n, -1, dtype=np.int32)
+        normal = np.zeros((n, 3)) if normals else None
+        if len(sub):
+            hits = self._full_ids(self._mujoco.cast_turning(take_rows(origins, sub), take_rows(dirs, sub),
+                                                            normals=normals))
+            dist[sub], geom[sub] = hits.dist_m, hits.geom_id
+            if normals:
+                put_rows(normal, sub, hits.normal_base)
+        return Hits(dist, geom, normal)
+
+    def cast_turning(self, origins, dirs, *, normals=False, reach_primitives=None) -> Hits:
+        """Casts (N, 3) rays, turntable frame, against the turning geoms with the hinge at 0.
+
+        ``reach_primitives``: (N,) bool, False where the ray surely misses the cylinder
+        :attr:`primitive_bounds` (MuJoCo then casts only the others); None: cast all.
+        """
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
         if self._embree is None or not len(origins):
-            return self._full_ids(self._mujoco.cast_turning(origins, dirs, normals=normals))
+            return self._cast_primitives(origins, dirs, normals, reach_primitives)
         embree_result = self._run_embree(origins.astype(np.float32), dirs.astype(np.float32))
         # MuJoCo on the turning primitives while Embree's threads traverse the mesh.
-        prim = self._full_ids(self._mujoco.cast_turning(origins, dirs, normals=normals))
+        prim = self._cast_primitives(origins, dirs, normals, reach_primitives)
         found = embree_result()  # primID, -1: miss
         at = np.flatnonzero(found >= 0)
         tri = found[at]
