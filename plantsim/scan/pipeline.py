@@ -482,7 +482,8 @@ def sidecar(result: ScanResult) -> dict:
     }
     work = result.parts.get("lidar", {}).get("work")
     if work:
-        out["performance"] = performance(result.timings_s, work)
+        out["performance"] = performance(result.timings_s, work,
+                                         physics_steps=(result.diagnostics or {}).get("physics_steps"))
     if result.diagnostics:
         out["turntable_diagnostics"] = result.diagnostics
     if result.journal_path is not None:
@@ -494,16 +495,18 @@ def sidecar(result: ScanResult) -> dict:
     return out
 
 
-def performance(timings_s: dict, work: dict) -> dict:
+def performance(timings_s: dict, work: dict, *, physics_steps: int | None = None) -> dict:
     """Where a scan's time went: rays cast and rays per second per phase.
 
     Args:
       timings_s: the run's phase wall times (``ScanResult.timings_s``).
       work: the line source's counts (:meth:`SimulatedLidar.work`).
+      physics_steps: MuJoCo steps of the servo physics (``turntable`` phase), if any.
 
     Returns:
       The line source's phases, plus the scan phase's throughput (beams and all
-      rays cast per second of the whole ``scan`` phase, motion excluded).
+      rays cast per second of the whole ``scan`` phase, motion excluded), and
+      the physics' steps per second when it ran.
     """
     scan_s = timings_s.get("scan", 0.0)
     rays = work["turning_cast"]["rays"]
@@ -511,6 +514,10 @@ def performance(timings_s: dict, work: dict) -> dict:
     if scan_s > 0:
         out["scan_phase"] = {"s": scan_s, "beams_per_s": round(work["beams"] / scan_s),
                              "rays_per_s": round(rays / scan_s)}
+    physics_s = timings_s.get("turntable", 0.0)
+    if physics_steps and physics_s > 0:
+        out["physics"] = {"steps": int(physics_steps), "s": physics_s,
+                          "steps_per_s": round(physics_steps / physics_s)}
     return out
 
 

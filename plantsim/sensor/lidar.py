@@ -118,6 +118,9 @@ class SimulatedLidar:
         self.caster = Caster(scene, origins, dirs, backend=backend, nthread=nthread)
         self.n_refined = 0
         self.n_beams_taken = 0
+        self.n_subrays_probe = 0  # footprint sub-rays cast as probes (every sub-ray when not adaptive)
+        self.n_subrays_refine = 0  # the other sub-rays of the beams whose probes were not flat
+        self.n_beams_refined = 0
         self.lines_s = 0.0  # wall time in cast_lines, s (casting included)
         self.sensor_model_s = 0.0  # wall time of the range/intensity/noise model, s
 
@@ -153,7 +156,10 @@ class SimulatedLidar:
         were resolved by a bounding-cylinder test without reaching the backend;
         ``sensor_model``: the range/intensity/noise model;
         ``footprint_and_bookkeeping``: the rest of the line source's time
-        (rotating rays, combining sub-rays, merging with the rig's hits).
+        (rotating rays, combining sub-rays, merging with the rig's hits); for the
+        realistic sensor also its ``subrays`` (``probe_rays`` cast for every beam plus
+        ``refine_rays`` for the ``beams_refined`` whose probes were not flat; they are
+        the turning cast's rays), and ``sensor_model`` its ``beams`` and ``beams_per_s``.
         """
         c = self.caster
         other_s = max(self.lines_s - c.cast_turning_s - self.sensor_model_s, 0.0)
@@ -165,11 +171,26 @@ class SimulatedLidar:
                 out["rays_per_s"] = round(rays / out["s"])
             return out
 
-        return {"beams": int(self.n_beams_taken),
-                "rig_cast_once": phase(c.n_rays_fixed, c.cast_fixed_s),
-                "turning_cast": {**phase(c.n_rays_cast, c.cast_turning_s), "culled": int(c.n_rays_culled)},
-                "sensor_model": {"s": round(self.sensor_model_s, 9)},
-                "footprint_and_bookkeeping": {"s": round(other_s, 9)}}
+        def per_beam(seconds):
+            out = {"beams": int(self.n_beams_taken), "s": round(seconds, 9)}
+            if self.n_beams_taken and out["s"] > 0:
+                out["beams_per_s"] = round(self.n_beams_taken / out["s"])
+            return out
+
+        out = {"beams": int(self.n_beams_taken),
+               "rig_cast_once": phase(c.n_rays_fixed, c.cast_fixed_s),
+               "turning_cast": {**phase(c.n_rays_cast, c.cast_turning_s), "culled": int(c.n_rays_culled)},
+               "sensor_model": {"s": round(self.sensor_model_s, 9)},
+               "footprint_and_bookkeeping": {"s": round(other_s, 9)}}
+        if not self.ideal:
+            out["sensor_model"] = per_beam(self.sensor_model_s)
+            subrays = self.n_subrays_probe + self.n_subrays_refine
+            out["footprint_and_bookkeeping"] = {
+                **phase(subrays, other_s), "subrays_per_beam": self.n_sub,
+                "probe_rays": int(self.n_subrays_probe), "refine_rays": int(self.n_subrays_refine),
+                "beams_refined": int(self.n_beams_refined)}
+            out["footprint_and_bookkeeping"]["subrays"] = out["footprint_and_bookkeeping"].pop("rays")
+        return out
 
     def cast_lines(self, table_rad: np.ndarray, rng: np.random.Generator, *,
                    beam_time_s: np.ndarray | None = None, progress: Progress | None = None) -> Lines:
@@ -242,6 +263,7 @@ class SimulatedLidar:
             c = hi - lo
             var = variant[lo:hi]
             ids = first_id[lo:hi, :, None] + probe[None, None, :]
+            self.n_subrays_probe += ids.size
             if theta.ndim == 1:  # one angle a line
                 hits = self.caster.cast(ids.reshape(c, -1), theta[lo:hi], normals=True)
             else:  # one angle a beam: each beam's probes are a "line" of the caster
@@ -277,7 +299,9 @@ class SimulatedLidar:
         n_beams = refine.shape[1]
         line_of, beam_of = np.nonzero(refine)
         self.n_refined += len(line_of)
+        self.n_beams_refined += len(line_of)
         n_rest = len(rest)
+        self.n_subrays_refine += len(line_of) * n_rest
         variant = var[line_of, beam_of]
         # All the refined beams' other sub-rays in one flat selection, each at its beam's angle.
         # (Each refined beam is a "line" of the caster: one angle for its n_rest sub-rays.)
