@@ -24,7 +24,7 @@ import numpy as np
 
 from plantsim.plant.mesh import load_plant
 from plantsim.scan.config import RunConfig
-from plantsim.scan.pipeline import run_scan, simulated_rig_time_s
+from plantsim.scan.pipeline import run_scan, sidecar, simulated_rig_time_s
 from plantsim.sensor.spec import PRESETS
 from plantsim.turntable.dynamics import TurntableSim, build_dynamic_scene, torque_gains
 from plantsim.turntable.options import TurntableOptions
@@ -73,13 +73,15 @@ def main(argv=None) -> None:
     parser.add_argument("--rpm", type=float, default=1.0)
     parser.add_argument("--ideal", action="store_true",
                         help="the ideal sensor and a perfect servo (no jitter, exact encoder); default realistic")
+    parser.add_argument("--threads", type=int, default=None, help="ray-casting threads (default: every core)")
     args = parser.parse_args(argv)
 
     lidar = PRESETS["urg-04lx-ug01"]
     plant = load_plant(args.mesh, units=args.units, up=args.up)
     sensor = "ideal" if args.ideal else "realistic"
     config = RunConfig(sensor=sensor, turntable=TurntableOptions(mode="continuous", rpm=args.rpm,
-                                                                 physics="dynamic", ideal=args.ideal))
+                                                                 physics="dynamic", ideal=args.ideal),
+                       threads=args.threads)
     phases = ("build_scene", "turntable", "scan", "reconstruct")
     times = {k: [] for k in (*phases, "total")}
     for run in range(args.runs):
@@ -92,7 +94,12 @@ def main(argv=None) -> None:
     med = {k: statistics.median(v) for k, v in times.items()}
     print(f"mesh {args.mesh}: {plant.n_faces:,} faces; {sensor} sensor, MuJoCo servo physics; "
           f"{result.raw.n_lines} lines x {result.raw.n_beams} beams, {len(result.cloud):,} points, "
-          f"{result.diagnostics['physics_steps']:,} physics steps")
+          f"{result.diagnostics['physics_steps']:,} physics steps; {args.threads or os.cpu_count()} casting "
+          f"threads, caster {result.parts['lidar']['ray_caster']}")
+    perf = sidecar(result)["performance"]
+    print("last run's sidecar performance: " + "; ".join(
+        f"{k} {v['s']:.3f} s" + (f" ({v['rays']:,} rays)" if "rays" in v else "")
+        for k, v in perf.items() if isinstance(v, dict) and "s" in v))
     print("median of %d runs: " % args.runs + ", ".join(f"{k} {v:.3f} s" for k, v in med.items()))
     speed = rig_s / med["total"]
     print(f"rig time {rig_s:.1f} s -> {speed:.1f}x faster than real time (target >= {TARGET_X:.0f}x: "
