@@ -50,3 +50,22 @@ def box_mesh():
     """A 40 x 60 x 120 mm box mesh (exact planar faces), centred at the origin."""
     m = trimesh.creation.box(extents=[0.04, 0.06, 0.12])
     return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+@pytest.fixture
+def emulator():
+    """A Dynamixel emulator (ID 1) on its bus clock: the exchanges, not the wall clock, move its time."""
+    from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
+
+    with DynamixelEmulator(ids=(1,), clock="bus") as emu:
+        yield emu
+
+
+@pytest.fixture
+def cylinder(tmp_path):
+    """A 5 cm radius, 0.3 m tall 64-sided cylinder written as an STL; its path."""
+    import trimesh
+
+    path = tmp_path / "cylinder.stl"
+    trimesh.creation.cylinder(radius=0.05, height=0.3, sections=64).export(path)
+    return str(path)

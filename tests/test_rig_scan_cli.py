@@ -3,27 +3,10 @@
 import json
 import math
 
-import pytest
-import trimesh
 
 from plantsim.cli import app as cli
-from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 from plantsim.scan.journal import read_journal
 from plantsim.turntable import units
-
-
-@pytest.fixture
-def emulator():
-    # The bus clock: the scan's exchanges, not the wall clock, move simulated time.
-    with DynamixelEmulator(ids=(1,), clock="bus") as emu:
-        yield emu
-
-
-@pytest.fixture
-def cylinder(tmp_path):
-    path = tmp_path / "cylinder.stl"
-    trimesh.creation.cylinder(radius=0.05, height=0.3, sections=64).export(path)
-    return str(path)
 
 
 def scan_args(emulator, cylinder, out, *extra):

@@ -13,11 +13,9 @@ import sys
 import time
 
 import pytest
-import trimesh
 
 from plantsim.cli import app as cli
 from plantsim.errors import Terminated
-from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 from plantsim.hardware.dynamixel.turntable import ServoTurntable
 from plantsim.hardware.safety import SafeStop
 from plantsim.scan.config import OutputOptions, PlantOptions, RunConfig
@@ -25,19 +23,6 @@ from plantsim.scan.journal import read_journal
 from plantsim.scan.pipeline import journal_path_for, run_scan
 from plantsim.scan.schedule import StepScan
 from test_dxl_safety import FAST, Tripwire, ctrl_c_raises, no_sleep, torque_on_in_emulator  # noqa: F401
-
-
-@pytest.fixture
-def emulator():
-    with DynamixelEmulator(ids=(1,), clock="bus") as emu:
-        yield emu
-
-
-@pytest.fixture
-def cylinder(tmp_path):
-    path = tmp_path / "cylinder.stl"
-    trimesh.creation.cylinder(radius=0.05, height=0.3, sections=64).export(path)
-    return str(path)
 
 
 def config_for(cylinder, out):

@@ -59,6 +59,7 @@ import tty
 from typing import Iterable
 
 from plantsim.turntable import servo
+from plantsim.hardware.pty import close_fds
 from plantsim.hardware.dynamixel import control_table as ct
 from plantsim.hardware.dynamixel import protocol
 from plantsim.turntable import units
@@ -399,12 +400,7 @@ class DynamixelEmulator:
             self._master = None
 
     def _close_fds(self) -> None:
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(self._master, self._slave)
         self._master = self._slave = None
 
     # --- access for tests and fault injection --------------------------------------

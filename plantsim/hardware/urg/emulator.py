@@ -52,6 +52,7 @@ from typing import Callable
 
 import numpy as np
 
+from plantsim.hardware.pty import close_fds
 from plantsim.hardware.urg import protocol as p
 from plantsim.hardware.urg.clock import RealTimeClock, VirtualClock  # noqa: F401 - VirtualClock re-exported here too
 from plantsim.sensor.spec import BeamStatus
@@ -208,12 +209,7 @@ class UrgEmulator:
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=5)
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
+        close_fds(self._master, self._slave)
         self._master = self._slave = None
 
     def __enter__(self) -> "UrgEmulator":
