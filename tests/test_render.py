@@ -117,3 +117,27 @@ def test_error_picture_states_its_scale_and_draws_a_colour_bar(scan):
     auto = _render_or_skip(render.error_picture_of, cloud, plant, rig,
                            view=render.View(width=160, height=120))
     assert 0 < auto.error_max_m < 0.05
+
+
+@pytest.mark.parametrize("facing", ["towards", "away"])
+def test_a_leaf_seen_from_behind_is_drawn(facing):
+    """One flat leaf (a single sheet of triangles) shows whichever side faces the camera."""
+    from plantsim.plant.mesh import plant_from_arrays
+    from plantsim.rig.geometry import RigGeometry
+
+    # A 10 cm square in the x = 0 plane, 5-15 cm up; winding gives a normal of -x or +x.
+    square = np.array([[0, -0.05, 0.05], [0, 0.05, 0.05], [0, 0.05, 0.15], [0, -0.05, 0.15]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    if facing == "towards":
+        faces = faces[:, ::-1]
+    leaf = plant_from_arrays(square, faces, placement="none")
+    normal = np.cross(*(square[faces[0, 1:]] - square[faces[0, 0]]))
+    # The camera looks along +x from -x (azimuth 0), away from the LiDAR's post on +x.
+    assert (normal[0] < 0) == (facing == "towards")
+    view = render.View(width=160, height=120, azimuth_deg=0.0, elevation_deg=0.0,
+                       distance_m=0.5, lookat=(0.0, 0.0, 0.1))
+    image = _render_or_skip(render.render_scene, RigGeometry(), leaf, view=view).astype(int)
+    green = (image[..., 1] > 2 * image[..., 0] + 10) & (image[..., 1] > 2 * image[..., 2] + 10)
+    # At 0.5 m with a 45 deg field of view the square spans 0.24 of the picture's height and
+    # 0.18 of its width (4:3): about 4 % of the pixels.
+    assert 0.03 * green.size < green.sum() < 0.06 * green.size

@@ -25,6 +25,7 @@ import mujoco
 import numpy as np
 
 from plantsim.errors import PlantSimError
+from plantsim.plant.mesh import PlantMesh
 from plantsim.rig.geometry import RigGeometry
 from plantsim.rig.scene import HitClass, build_spec
 
@@ -143,6 +144,19 @@ def _fan(model: mujoco.MjModel, data: mujoco.MjData, rig: RigGeometry, plant, li
     return segments
 
 
+def two_sided(plant: PlantMesh) -> PlantMesh:
+    """The plant with every face also wound the other way, on its own vertices (drawing only).
+
+    A leaf is one sheet of triangles, and OpenGL culls the side facing away from its
+    winding, so a leaf seen from behind vanished from the picture while its shadow stayed.
+    The reversed copy gets its own vertices so that MuJoCo's per-vertex normals (averaged
+    over the faces that share a vertex) point out of each side instead of cancelling.
+    """
+    n = len(plant.vertices_mesh)
+    return dataclasses.replace(plant, vertices_mesh=np.vstack([plant.vertices_mesh, plant.vertices_mesh]),
+                               faces=np.vstack([plant.faces, plant.faces[:, ::-1] + n]).astype(plant.faces.dtype))
+
+
 def render_scene(rig: RigGeometry, plant=None, *, points_turntable: np.ndarray | None = None,
                  point_rgba: np.ndarray | None = None, lidar=None, fan_rays: int = 41,
                  view: View = View(), point_radius_m: float = 0.0015,
@@ -158,7 +172,7 @@ def render_scene(rig: RigGeometry, plant=None, *, points_turntable: np.ndarray |
       lidar: LidarSpec whose fan is drawn (None: no fan).
       fan_rays: beams of the fan drawn (evenly spread over the field of view).
       view: the camera.
-      point_radius_m: radius of the spheres drawn for points.
+      point_radius_m: half the side of the cubes drawn for points.
       max_points: at most this many points are drawn (an even subsample).
       turntable_angle_rad: the turntable's angle (points turn with it).
       overlay: text drawn in the top-left corner (lines split by "\n"), or None.
@@ -166,13 +180,10 @@ def render_scene(rig: RigGeometry, plant=None, *, points_turntable: np.ndarray |
     Raises:
       RenderError: no offscreen OpenGL context (names what to install).
     """
-    spec = build_spec(rig, plant)
+    spec = build_spec(rig, None if plant is None else two_sided(plant))
     spec.visual.global_.offwidth = view.width
     spec.visual.global_.offheight = view.height
     spec.visual.quality.shadowsize = 2048
-    # Tens of thousands of point spheres: coarse tessellation keeps software GL fast.
-    spec.visual.quality.numslices = 6
-    spec.visual.quality.numstacks = 4
     model = spec.compile()
     data = mujoco.MjData(model)
     data.qpos[model.jnt_qposadr[model.joint("turntable").id]] = turntable_angle_rad
@@ -215,11 +226,13 @@ def render_scene(rig: RigGeometry, plant=None, *, points_turntable: np.ndarray |
             world = points_turntable[keep] @ R.T
             rgba = (np.tile(np.array([1, 0, 1, 1], np.float32), (len(keep), 1))
                     if point_rgba is None else np.asarray(point_rgba, np.float32)[keep])
-            size = np.array([point_radius_m, 0, 0])
+            # Points are small cubes (12 triangles each): tens of thousands of spheres would
+            # need a coarse tessellation that turned the disk into a hexagon, and cost more.
+            size = np.full(3, point_radius_m)
             eye = np.eye(3).ravel()
             for p, c in zip(world, rgba):
                 g = scene.geoms[scene.ngeom]
-                mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, size, p, eye, c)
+                mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_BOX, size, p, eye, c)
                 scene.ngeom += 1
         for start, end in segments:
             g = scene.geoms[scene.ngeom]
