@@ -24,13 +24,39 @@ if not embree.embree_available():
 ANGLES = BeamGrid.of(URG_04LX_UG01).beam_angles_rad()
 
 
-def both(scene, model=None, angles_deg=np.arange(0, 360, 7.0)):
+def both(scene, model=None, angles_deg=np.arange(0, 360, 7.0), *, embree_from="model"):
+    """The same lines cast by MuJoCo and by Embree.
+
+    ``embree_from``: "model" gives Embree a scene whose MuJoCo model is compiled (the
+    triangles are MuJoCo's float32 vertices, MuJoCo casts the primitives); "layout" gives it
+    a fresh, uncompiled copy of the scene (the plant's own float64 triangles, the rig's
+    primitives analytic, no MuJoCo).
+    """
     out = {}
     for name in ("mujoco", "embree"):
-        source = SimulatedLidar(scene, URG_04LX_UG01, ANGLES, model=model, backend=make_backend(scene, name))
+        use = scene
+        if name == "embree" and embree_from == "layout":
+            use = build_scene(scene.rig, scene.plant)
+            assert not use.model_compiled
+        else:
+            use.model  # compiled
+        source = SimulatedLidar(use, URG_04LX_UG01, ANGLES, model=model, backend=make_backend(use, name))
         assert source.caster.backend.name == name
+        if name == "embree":
+            assert ("MuJoCo not loaded" in source.describe()["ray_caster_detail"]) == (embree_from == "layout")
+            assert use.model_compiled == (embree_from == "model")
         out[name] = source.cast_lines(np.radians(angles_deg), np.random.default_rng(0))
     return out["mujoco"], out["embree"]
+
+
+def _same_ranges(a, b, embree_from):
+    if embree_from == "model":
+        np.testing.assert_array_equal(a.range_m, b.range_m)  # float64 refinement, then the same float32 rounding
+    else:
+        # The plant's own vertices against MuJoCo's float32 copies of them: a few 1e-8 m at 0.5 m.
+        np.testing.assert_array_equal(np.isnan(a.range_m), np.isnan(b.range_m))
+        ok = ~np.isnan(a.range_m)
+        np.testing.assert_allclose(b.range_m[ok], a.range_m[ok], rtol=0, atol=2e-7)
 
 
 def shapes():
@@ -44,23 +70,25 @@ def shapes():
     return trimesh.util.concatenate([sphere, box, cylinder])
 
 
+@pytest.mark.parametrize("embree_from", ["model", "layout"])
 @pytest.mark.parametrize("which", ["shapes", "maize"])
-def test_ideal_lines_are_the_same_hit_for_hit(which):
+def test_ideal_lines_are_the_same_hit_for_hit(which, embree_from):
     if which == "shapes":
         mesh = shapes()
         plant = plant_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces), placement="none")
     else:
         plant = load_plant(bundled_plant_path("maize"))
-    a, b = both(build_scene(RigGeometry(), plant))
+    a, b = both(build_scene(RigGeometry(), plant), embree_from=embree_from)
     np.testing.assert_array_equal(a.geom_id, b.geom_id)
     np.testing.assert_array_equal(a.status, b.status)
-    np.testing.assert_array_equal(a.range_m, b.range_m)  # float64 refinement, then the same float32 rounding
+    _same_ranges(a, b, embree_from)
     assert (a.hit_class == 1).sum() > 500
 
 
-def test_realistic_lines_agree_beam_for_beam():
+@pytest.mark.parametrize("embree_from", ["model", "layout"])
+def test_realistic_lines_agree_beam_for_beam(embree_from):
     a, b = both(build_scene(RigGeometry(), load_plant(bundled_plant_path("maize"))), model=SensorModel(),
-                angles_deg=np.arange(0, 360, 15.0))
+                angles_deg=np.arange(0, 360, 15.0), embree_from=embree_from)
     np.testing.assert_array_equal(a.status, b.status)
     np.testing.assert_array_equal(a.geom_id, b.geom_id)
     ok = a.status == 0
@@ -69,9 +97,10 @@ def test_realistic_lines_agree_beam_for_beam():
     np.testing.assert_allclose(a.intensity[ok], b.intensity[ok], atol=1e-3)
 
 
-def test_a_scene_without_a_turning_mesh_falls_to_mujoco_alone():
+@pytest.mark.parametrize("embree_from", ["model", "layout"])
+def test_a_scene_without_a_turning_mesh_falls_to_mujoco_alone(embree_from):
     scene = build_scene(RigGeometry())  # no plant: the disk is a primitive
-    a, b = both(scene)
+    a, b = both(scene, embree_from=embree_from)
     np.testing.assert_array_equal(a.range_m, b.range_m)
     np.testing.assert_array_equal(a.geom_id, b.geom_id)
 
@@ -95,15 +124,23 @@ def random_rays(n, seed=0):
     return start, dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
 
 
-@pytest.mark.parametrize("lite", [True, False], ids=["rig-rebuilt", "model-copies"])
-def test_backend_calls_agree_with_mujoco_with_normals(lite, monkeypatch):
-    if not lite:  # the path for scenes that are not the plain rig plus a plant
+@pytest.mark.parametrize("path", ["rig-rebuilt", "model-copies", "layout"])
+def test_backend_calls_agree_with_mujoco_with_normals(path, monkeypatch):
+    if path == "model-copies":  # the path for scenes that are not the plain rig plus a plant
         monkeypatch.setattr(embree, "_without_meshes", lambda scene, mesh_geoms: None)
     mesh = shapes()
-    scene = build_scene(RigGeometry(), plant_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces),
-                                                         placement="none"))
-    reference, fast = MujocoBackend(scene), embree.EmbreeBackend(scene)
-    assert (fast._geom_ids is not None) == lite
+    plant = plant_from_arrays(np.asarray(mesh.vertices), np.asarray(mesh.faces), placement="none")
+    scene = build_scene(RigGeometry(), plant)
+    if path == "layout":  # no MuJoCo behind Embree: the plant's own triangles, analytic primitives
+        fast = embree.EmbreeBackend(scene)
+        assert not scene.model_compiled
+        reference = MujocoBackend(build_scene(RigGeometry(), plant))
+    else:
+        reference, fast = MujocoBackend(scene), embree.EmbreeBackend(scene)
+        assert (fast._geom_ids is not None) == (path == "rig-rebuilt")
+    # MuJoCo's float32 copy of the vertices against the plant's own: ~3e-8 m at 0.3 m, times the
+    # slope of an oblique hit (1.2e-7 m on 2 rays of 3482 here).
+    atol = 5e-7 if path == "layout" else 1e-12
     origins, dirs = random_rays(20_000)
     for cast in ("cast_turning", "cast_fixed"):
         a = getattr(reference, cast)(origins, dirs, normals=True)
@@ -113,9 +150,9 @@ def test_backend_calls_agree_with_mujoco_with_normals(lite, monkeypatch):
         hit = a.dist_m >= 0
         assert hit.sum() > 2000
         # Float64 refinement: far inside float32's 1.2e-7 x the 0.8 m scene.
-        np.testing.assert_allclose(b.dist_m[hit], a.dist_m[hit], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(b.dist_m[hit], a.dist_m[hit], rtol=0, atol=atol)
         cos = np.einsum("ij,ij->i", a.normal_base[hit], b.normal_base[hit])
-        np.testing.assert_allclose(cos, 1.0, atol=1e-9)
+        np.testing.assert_allclose(cos, 1.0, atol=1e-9 if path != "layout" else 1e-6)
     turning = fast.cast_turning(origins, dirs)
     assert np.isin(turning.geom_id[turning.geom_id >= 0], [scene.model.geom("disk").id,
                                                           scene.model.geom("plant").id]).all()

@@ -20,6 +20,7 @@ from plantsim.scan.pipeline import journal_path_for, run_scan, step_and_shoot, w
 from plantsim.scan.raw import BeamGrid
 from plantsim.scan.schedule import StepScan
 from plantsim.rig.scene import HitClass
+from plantsim.sensor.casting import make_backend
 from plantsim.sensor.lidar import SimulatedLidar
 from plantsim.sensor.spec import BeamStatus
 from plantsim.hardware.dynamixel.turntable import ServoTurntable
@@ -80,9 +81,15 @@ def assert_raw_equal(a, b):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
 
 
-def cast_at(scene, lidar, angles_rad):
-    """Ranges and geoms of a kinematic scan at the given angles (the obvious reference)."""
-    lines = SimulatedLidar(scene, lidar, BeamGrid.of(lidar).beam_angles_rad()).cast_lines(
+def cast_at(scene, lidar, angles_rad, caster="auto"):
+    """Ranges and geoms of a kinematic scan at the given angles (the obvious reference).
+
+    ``caster``: the scan's own (its configuration's default), so that the same rays meet
+    the same triangles: Embree on the plant's own vertices and MuJoCo on its float32 copy
+    of them differ by ~1e-8 m.
+    """
+    lines = SimulatedLidar(scene, lidar, BeamGrid.of(lidar).beam_angles_rad(),
+                           backend=make_backend(scene, caster)).cast_lines(
         np.asarray(angles_rad), np.random.default_rng(0))
     return lines.range_m, lines.status, lines.geom_id
 
@@ -208,7 +215,7 @@ def check_hil_against_simulated(hil, sim, truth, config):
     assert np.abs(shaft_error).max() <= QUANTUM_RAD
     # The rays were cast at the reported angle and reconstructed with it: the HIL lines
     # are exactly a kinematic scan at the reported angles.
-    range_m, status, geom = cast_at(hil.scene, config.lidar, reported)
+    range_m, status, geom = cast_at(hil.scene, config.lidar, reported, config.caster)
     np.testing.assert_array_equal(raw.range_m, range_m)
     np.testing.assert_array_equal(raw.geom_id, geom)
     np.testing.assert_array_equal(raw.true_turntable_angle_rad, raw.turntable_angle_rad)
@@ -283,7 +290,7 @@ def test_lost_reply_mid_scan_is_a_clear_error_then_resume_completes(tmp_path, em
     lines = read_journal(journal_path_for(config.output.path)).lines
     assert [line.index for line in lines] == list(range(12))
     np.testing.assert_array_equal([line.commanded_angle_rad for line in lines], config.scan.angles_rad())
-    range_m, _, _ = cast_at(resumed.scene, config.lidar, resumed.raw.turntable_angle_rad[:, 0])
+    range_m, _, _ = cast_at(resumed.scene, config.lidar, resumed.raw.turntable_angle_rad[:, 0], config.caster)
     np.testing.assert_array_equal(resumed.raw.range_m, range_m)
 
 

@@ -12,7 +12,8 @@ A :class:`Caster` holds the sensor's rays (the "ray table", base frame, fixed by
 the rig geometry and the sensor) and casts any selection of them at any
 turntable angles. The casting itself is a backend: :class:`MujocoBackend`
 (``mujoco.batch``, the reference) or, when installed, Embree
-(:mod:`plantsim.sensor.embree`).
+(:mod:`plantsim.sensor.embree`). MuJoCo is imported only by the backend that
+uses it: a kinematic scan cast with Embree never loads it.
 """
 
 from __future__ import annotations
@@ -23,10 +24,9 @@ import os
 import time
 from typing import Callable, NamedTuple, Protocol
 
-import mujoco
-import mujoco.batch
 import numpy as np
 
+from plantsim.rig.layout import N_GROUPS
 from plantsim.rig.scene import Scene
 from plantsim.sensor.spec import BeamStatus, LidarSpec
 
@@ -43,7 +43,7 @@ AXIS_TRAP_OFFSET_M = 1e-9
 
 
 def _groups(*groups: int) -> np.ndarray:
-    return np.array([1 if g in groups else 0 for g in range(mujoco.mjNGROUP)], dtype=np.uint8)
+    return np.array([1 if g in groups else 0 for g in range(N_GROUPS)], dtype=np.uint8)
 
 
 CAST_GEOMGROUP = _groups(0, 1, 2)  # rig, turntable, plant; group 3 (the sensor's housing) is never cast
@@ -52,6 +52,8 @@ _HIDDEN_GROUP = 5  # where a backend's private model copy parks the geoms one ca
 
 def turning_geoms(scene: Scene) -> np.ndarray:
     """(ngeom,) bool: the geoms that turn with the table (on the turntable body or its descendants)."""
+    if scene.layout is not None:
+        return scene.layout.turning
     model = scene.model
     table = model.body("turntable").id
     turning_body = np.zeros(model.nbody, dtype=bool)
@@ -122,6 +124,8 @@ class MujocoBackend:
     name = "mujoco"
 
     def __init__(self, scene: Scene, *, nthread: int | None = None, rays_per_sim: int = 8192):
+        import mujoco.batch
+
         self.scene = scene
         self.nthread = nthread or max(1, os.cpu_count() or 1)
         self.nsim = 2 * self.nthread
@@ -138,6 +142,8 @@ class MujocoBackend:
 
     def replace_model(self, which: str, model: mujoco.MjModel) -> None:
         """Casts ``which`` ("turning" or "fixed") rays against this model copy (geoms to skip in group 5)."""
+        import mujoco.batch
+
         self._batches[which] = mujoco.batch.Batch(model, nsim=self.nsim, nthread=self.nthread)
 
     def _cast(self, which, origins, dirs, normals) -> Hits:
@@ -259,6 +265,10 @@ def turning_bounds(scene: Scene, *, margin_m: float = 1e-6, geoms: np.ndarray | 
       (radius_m, z_min_m, z_max_m), base frame; (0, 0, -1) (an empty cylinder)
       when nothing that a ray may hit turns.
     """
+    if scene.layout is not None:
+        return _layout_bounds(scene, margin_m=margin_m, geoms=geoms)
+    import mujoco
+
     model = scene.model
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
@@ -289,6 +299,45 @@ def turning_bounds(scene: Scene, *, margin_m: float = 1e-6, geoms: np.ndarray | 
                 lo, hi = max(lo, float(corners[:, 2].min()) - pad), min(hi, float(corners[:, 2].max()) + pad)
             radius = max(radius, r)
             z_min, z_max = min(z_min, lo), max(z_max, hi)
+    if z_max < z_min:
+        return 0.0, 0.0, -1.0
+    return radius + margin_m, z_min - margin_m, z_max + margin_m
+
+
+def _layout_bounds(scene: Scene, *, margin_m: float, geoms: np.ndarray | None) -> tuple[float, float, float]:
+    """:func:`turning_bounds` from the scene's layout (no MuJoCo): the same rules.
+
+    The plant is bounded by its own float64 vertices (MuJoCo's model holds them as
+    float32, hence the same relative pad).
+    """
+    from plantsim.sensor.primitives import bounding_radius, local_half_extents
+
+    layout = scene.layout
+    cast = np.isin(layout.group, np.nonzero(CAST_GEOMGROUP)[0])
+    chosen = layout.turning if geoms is None else (np.asarray(geoms, dtype=bool) & layout.turning)
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+    radius, z_min, z_max = 0.0, np.inf, -np.inf
+    for g in np.nonzero(chosen & cast)[0]:
+        geom = layout.geoms[g]
+        if geom.type == "mesh":
+            if scene.plant is None or geom.name != "plant":
+                return np.inf, -np.inf, np.inf
+            v = scene.plant.vertices_turntable
+            pad = 1e-6 * float(np.abs(v).max(initial=0.0))
+            radius = max(radius, float(np.hypot(v[:, 0], v[:, 1]).max(initial=0.0)) + pad)
+            z_min, z_max = min(z_min, float(v[:, 2].min()) - pad), max(z_max, float(v[:, 2].max()) + pad)
+            continue
+        rb = bounding_radius(geom)
+        if not np.isfinite(rb):
+            return np.inf, -np.inf, np.inf
+        pos = geom.pos_base
+        r, lo, hi = float(np.hypot(pos[0], pos[1])) + rb, pos[2] - rb, pos[2] + rb
+        corners = (local_half_extents(geom) * signs) @ geom.R_base_geom.T + pos
+        pad = 1e-9 * (1.0 + float(np.abs(corners).max()))
+        r = min(r, float(np.hypot(corners[:, 0], corners[:, 1]).max()) + pad)
+        lo, hi = max(lo, float(corners[:, 2].min()) - pad), min(hi, float(corners[:, 2].max()) + pad)
+        radius = max(radius, r)
+        z_min, z_max = min(z_min, lo), max(z_max, hi)
     if z_max < z_min:
         return 0.0, 0.0, -1.0
     return radius + margin_m, z_min - margin_m, z_max + margin_m

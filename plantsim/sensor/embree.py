@@ -1,14 +1,26 @@
 """An Embree ray-casting backend (``embreex``): the plant's triangles an order of magnitude faster.
 
-Embree traverses the turning mesh geoms (the plant) in float32 on one thread;
-every hit's distance is then recomputed in float64 on the plane of the triangle
-Embree found (a plane per triangle, computed once), so that distances and normals
-are MuJoCo's to rounding (within 2e-14 m over 245,880 beams on the bundled
-maize). The turning primitive geoms (the disk) and the fixed rig stay with
-MuJoCo, which is exact on primitives and cheap there: on the same rig rebuilt
-without the plant when that has exactly the scene's other geoms, else on copies of
-the scene's model with the meshes hidden. MuJoCo is the reference: the tests cast
+Embree traverses the turning mesh geoms (the plant) in float32; every hit's
+distance is then recomputed in float64 on the plane of the triangle Embree found
+(a plane per triangle, computed once). MuJoCo is the reference: the tests cast
 the same rays with both and compare hit for hit.
+
+Two ways to get the scene, one result:
+
+- A scene with a layout (:mod:`plantsim.rig.layout`; every scene
+  :func:`plantsim.rig.scene.build_scene` makes for a kinematic scan): the
+  plant's triangles come from the plant itself, float64, and the rig's
+  primitives (bench, housing, post, disk) are cast analytically by
+  :mod:`plantsim.sensor.primitives`, following MuJoCo's rules. MuJoCo is neither
+  imported nor compiled. MuJoCo's model stores mesh vertices as float32, so
+  distances on the plant differ from MuJoCo's by that rounding (a few 1e-8 m
+  at 0.5 m); the planes here are the mesh's exact ones.
+- Any other scene (a dynamic scan's, or one compiled from a spec of its own):
+  the triangles come from MuJoCo's compiled model (its float32 vertices, placed
+  by the geom poses), so that distances and normals are MuJoCo's to rounding
+  (within 2e-14 m over 245,880 beams on the bundled maize), and MuJoCo casts the
+  primitives: on the same rig rebuilt without the plant when that has exactly the
+  scene's other geoms, else on copies of the scene's model with the meshes hidden.
 
 Threads: Embree's traversal releases the GIL, so the rays of a call are split
 into ``nthread`` contiguous blocks cast on a thread pool (each ray's hit does not
@@ -30,13 +42,13 @@ import copy
 import os
 from concurrent.futures import ThreadPoolExecutor
 
-import mujoco
 import numpy as np
 
 from plantsim.errors import PlantSimError
 from plantsim.rig.scene import Scene, build_scene
-from plantsim.sensor.casting import (_HIDDEN_GROUP, Hits, MujocoBackend, put_rows, take_rows, turning_bounds,
-                                     turning_geoms)
+from plantsim.sensor.casting import (_HIDDEN_GROUP, CAST_GEOMGROUP, Hits, MujocoBackend, put_rows, take_rows,
+                                     turning_bounds, turning_geoms)
+from plantsim.sensor.primitives import cast_geoms
 
 
 def embree_available() -> bool:
@@ -56,9 +68,61 @@ class EmbreeBackend:
     MIN_RAYS_PER_THREAD = 4096
 
     def __init__(self, scene: Scene, *, nthread: int | None = None):
+        self.nthread = nthread or max(1, os.cpu_count() or 1)
+        self._pool = None  # made on first use: a backend that never casts in parallel starts no threads
+        self._embree = None
+        self._mujoco = None
+        if scene.layout is not None and not scene.model_compiled:
+            self._init_from_layout(scene)
+        else:
+            self._init_from_model(scene)
+        # Each triangle's plane, float64, for the refinement of Embree's float32 hits:
+        # unit normal n (right hand over the vertex order, as MuJoCo's) and offset n . v0.
+        normal = np.cross(self.triangles[:, 1] - self.triangles[:, 0], self.triangles[:, 2] - self.triangles[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        self._plane_normal = normal
+        self._plane_offset = np.einsum("ij,ij->i", normal, self.triangles[:, 0])
+
+    def _build_embree(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
+        self.triangles = vertices[faces]
+        # embreex copies its input element by element: the indexed form (one copy per
+        # shared vertex, not three) builds about twice as fast.
+        self._embree = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=self._embree, vertices=np.ascontiguousarray(vertices, dtype=np.float32),
+                     indices=np.ascontiguousarray(faces, dtype=np.int32))
+
+    def _init_from_layout(self, scene: Scene) -> None:
+        """The plant's own triangles for Embree, the rig's primitives analytic: no MuJoCo."""
+        layout = scene.layout
+        cast = CAST_GEOMGROUP[np.clip(layout.group, 0, len(CAST_GEOMGROUP) - 1)].astype(bool)
+        excluded = np.array([g.body == layout.bodies[scene.lidar_body_id] for g in layout.geoms])
+        usable = cast & ~excluded
+        is_mesh = np.array([g.type == "mesh" for g in layout.geoms])
+        self.detail = ("Embree on the plant's own float64 triangles (float32 traversal, float64 distance); "
+                       "the rig's primitives analytic (plantsim.sensor.primitives); MuJoCo not loaded")
+        self._fixed_prims = [(i, g) for i, g in enumerate(layout.geoms)
+                             if usable[i] and not g.turning and not is_mesh[i]]
+        self._turning_prims = [(i, g) for i, g in enumerate(layout.geoms)
+                               if usable[i] and g.turning and not is_mesh[i]]
+        self._geom_ids = None
+        mesh_geoms = np.flatnonzero(usable & is_mesh & layout.turning)
+        self.primitive_bounds = turning_bounds(scene, geoms=~is_mesh)
+        if len(mesh_geoms) and scene.plant is not None and scene.plant.n_faces:
+            self.geom_of_triangle = np.full(scene.plant.n_faces, mesh_geoms[0], dtype=np.int32)
+            self._build_embree(scene.plant.vertices_turntable, scene.plant.faces)
+        else:
+            self.geom_of_triangle = np.zeros(0, np.int32)
+            self.triangles = np.zeros((0, 3, 3))
+
+    def _init_from_model(self, scene: Scene) -> None:
+        """Triangles from MuJoCo's compiled model; MuJoCo casts the primitives."""
+        import mujoco
+
+        self.detail = "Embree on MuJoCo's mesh vertices (float64 distance); MuJoCo on the primitives"
+        self._fixed_prims = self._turning_prims = None
         model = scene.model
         data = mujoco.MjData(model)
         mujoco.mj_kinematics(model, data)  # the hinge at 0: the turntable frame is the base frame
@@ -82,24 +146,11 @@ class EmbreeBackend:
         # The cylinder about the axis that holds the turning geoms MuJoCo casts (the disk): a
         # caster that knows which of its rays cannot reach it passes ``reach_primitives``.
         self.primitive_bounds = turning_bounds(scene, geoms=~np.isin(np.arange(model.ngeom), mesh_geoms))
-        self.nthread = nthread or max(1, os.cpu_count() or 1)
-        self._pool = None  # made on first use: a backend that never casts in parallel starts no threads
-        self._embree = None
         if len(self.geom_of_triangle):
-            vertices, faces = np.concatenate(vertices), np.concatenate(faces)
-            self.triangles = vertices[faces]
-            # embreex copies its input element by element: the indexed form (one copy per
-            # shared vertex, not three) builds about twice as fast.
-            self._embree = rtcore_scene.EmbreeScene()
-            TriangleMesh(scene=self._embree, vertices=vertices.astype(np.float32), indices=faces.astype(np.int32))
+            self._build_embree(np.concatenate(vertices), np.concatenate(faces))
         else:
             self.triangles = np.zeros((0, 3, 3))
-        # Each triangle's plane, float64, for the refinement of Embree's float32 hits:
-        # unit normal n (right hand over the vertex order, as MuJoCo's) and offset n . v0.
-        normal = np.cross(self.triangles[:, 1] - self.triangles[:, 0], self.triangles[:, 2] - self.triangles[:, 0])
-        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-        self._plane_normal = normal
-        self._plane_offset = np.einsum("ij,ij->i", normal, self.triangles[:, 0])
+        nthread = self.nthread
         # MuJoCo for the turning primitives and the fixed rig: on the same rig rebuilt without
         # the plant when that gives the very same geoms (copying and batching a model that
         # carries a big mesh costs ~1 us per face, three times over), else on copies of the
@@ -122,6 +173,8 @@ class EmbreeBackend:
         return Hits(hits.dist_m, geom, hits.normal_base)
 
     def cast_fixed(self, origins, dirs, *, normals=False) -> Hits:
+        if self._fixed_prims is not None:
+            return Hits(*cast_geoms(self._fixed_prims, origins, dirs, normals=normals))
         return self._full_ids(self._mujoco.cast_fixed(origins, dirs, normals=normals))
 
     def _run_embree(self, origins32: np.ndarray, dirs32: np.ndarray):
@@ -139,15 +192,18 @@ class EmbreeBackend:
         return lambda: np.concatenate([f.result() for f in futures])
 
     def _cast_primitives(self, origins, dirs, normals, reach) -> Hits:
+        if self._turning_prims is not None:
+            cast = lambda o, d: Hits(*cast_geoms(self._turning_prims, o, d, normals=normals))  # noqa: E731
+        else:
+            cast = lambda o, d: self._full_ids(self._mujoco.cast_turning(o, d, normals=normals))  # noqa: E731
         if reach is None:
-            return self._full_ids(self._mujoco.cast_turning(origins, dirs, normals=normals))
+            return cast(origins, dirs)
         n = len(origins)
         sub = np.flatnonzero(reach)
         dist, geom = np.full(n, -1.0), np.full(n, -1, dtype=np.int32)
         normal = np.zeros((n, 3)) if normals else None
         if len(sub):
-            hits = self._full_ids(self._mujoco.cast_turning(take_rows(origins, sub), take_rows(dirs, sub),
-                                                            normals=normals))
+            hits = cast(take_rows(origins, sub), take_rows(dirs, sub))
             dist[sub], geom[sub] = hits.dist_m, hits.geom_id
             if normals:
                 put_rows(normal, sub, hits.normal_base)
@@ -198,6 +254,8 @@ def _without_meshes(scene: Scene, mesh_geoms: np.ndarray) -> tuple[Scene, np.nda
       or None when the scene is not the plain rig plus turning meshes (then the caller
       works on copies of the scene's own model).
     """
+    import mujoco
+
     full = scene.model
     try:
         lite = build_scene(scene.rig)

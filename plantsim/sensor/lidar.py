@@ -133,6 +133,9 @@ class SimulatedLidar:
         out = {"kind": "simulated", "model": self.lidar.name,
                "sensor": "ideal" if self.ideal else "realistic",
                "ray_caster": self.caster.backend.name}
+        detail = getattr(self.caster.backend, "detail", None)
+        if detail:
+            out["ray_caster_detail"] = detail
         if self.ideal:
             out["effects"] = "none: one geometric ray per beam, exact first hit, range limits"
         else:
