@@ -370,18 +370,15 @@ def _lean_scan_process(*, draws: bool = False) -> None:
 
     On import MuJoCo probes for an OpenGL library for ``mujoco.Renderer`` (with GLFW by
     starting a second Python process, ~40 ms) and laspy imports ``requests`` (~70 ms) to
-    read COPC files over HTTP. A scan neither draws nor downloads: MuJoCo is imported with
-    ``MUJOCO_GL=disable`` (the variable is set for that import only; a user's own setting
-    is left alone) unless it will draw (``draws``: an evaluated scan's error picture), and
-    ``requests`` is marked absent, which laspy handles as an optional dependency. Called
-    before anything imports either.
+    read COPC files over HTTP. A scan neither draws nor downloads: unless it will draw
+    (``draws``: an evaluated scan's error picture), ``MUJOCO_GL=disable`` is set for this
+    process (a user's own setting is left alone), so that if the scan loads MuJoCo at all
+    (physics, the MuJoCo caster; a kinematic scan cast with Embree never does) it skips
+    the probe; and ``requests`` is marked absent, which laspy handles as an optional
+    dependency. Called before anything imports either.
     """
     if not draws and "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ:
         os.environ["MUJOCO_GL"] = "disable"
-        try:
-            import mujoco  # noqa: F401
-        finally:
-            del os.environ["MUJOCO_GL"]
     sys.modules.setdefault("requests", None)
 
 

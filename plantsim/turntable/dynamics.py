@@ -39,7 +39,7 @@ import dataclasses
 import logging
 import math
 
-import mujoco
+from plantsim._lazy import lazy_module
 import numpy as np
 
 from plantsim.turntable import units
@@ -49,12 +49,14 @@ from plantsim.rig.geometry import RigGeometry
 from plantsim.rig.scene import Scene, build_spec, compile_scene
 from plantsim.turntable.servo import Profile, ServoConfig, plan_profile
 
+mujoco = lazy_module("mujoco")  # loaded on first use: a kinematic scan never uses it
+
 log = logging.getLogger(__name__)
 
-INTEGRATORS = {
-    "euler": mujoco.mjtIntegrator.mjINT_EULER,
-    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
-    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+INTEGRATORS = {  # name -> mujoco.mjtIntegrator member name (looked up when a scene is built)
+    "euler": "mjINT_EULER",
+    "implicitfast": "mjINT_IMPLICITFAST",
+    "rk4": "mjINT_RK4",
 }
 
 # Largest omega_n * dt for which a stiff position loop is integrated stably and
@@ -264,7 +266,7 @@ def add_servo(spec: mujoco.MjSpec, dynamics: TurntableDynamics) -> None:
     """Adds the servo, and the jitter sources in use, to a scene's spec (in place)."""
     servo, jitter = dynamics.servo, dynamics.jitter
     spec.option.timestep = dynamics.timestep_s
-    spec.option.integrator = INTEGRATORS[dynamics.integrator]
+    spec.option.integrator = getattr(mujoco.mjtIntegrator, INTEGRATORS[dynamics.integrator])
     table_joint = spec.joint("turntable")
     if jitter.backlash_deg > 0:
         # The servo output is its own body; the table floats within the play.

@@ -34,11 +34,13 @@ import dataclasses
 import math
 from typing import Mapping
 
-import mujoco
+from plantsim._lazy import lazy_module
 import numpy as np
 
 from plantsim.turntable import units
 from plantsim.errors import SimulationError
+
+mujoco = lazy_module("mujoco")  # loaded on first use: a kinematic scan never uses it
 
 
 @dataclasses.dataclass(frozen=True)
