@@ -39,7 +39,11 @@ def test_scan_writes_cloud_and_sidecar(tmp_path, small_mesh, capsys):
     assert meta["counts"]["points_written"] == len(las.points)
     assert meta["seed"] == 7 and meta["config"]["scan"]["step_deg"] == 30
     assert np.array(meta["frames"]["T_turntable_mesh"]).shape == (4, 4)
-    assert {"mujoco", "numpy", "laspy", "plantsim"} <= set(meta["versions"])
+    versions = meta["versions"]
+    assert {"numpy", "laspy", "plantsim", "python"} <= set(versions)
+    # Every library is either loaded (with its version) or named as not loaded; none is both.
+    assert not set(versions["not_loaded"]) & set(versions)
+    assert {"mujoco", "numpy", "laspy"} <= set(versions) | set(versions["not_loaded"])
     assert {"load_mesh", "build_scene", "scan", "reconstruct"} <= set(meta["timings_s"])
     assert meta["counts"]["beams"] == 12 * 683
     assert sum(meta["counts"]["by_status"].values()) == 12 * 683

@@ -86,17 +86,36 @@ class ScanResult:
 
 
 def library_versions() -> dict:
-    """Versions of plantsim and what it runs on (read from metadata: no slow imports)."""
-    from importlib import metadata
+    """Versions of plantsim, Python and the libraries this run loaded (no slow imports).
+
+    A library the run never imported (MuJoCo in a kinematic scan cast with Embree,
+    rosbags without ``--raw``) did not shape its output: it is named in
+    ``not_loaded`` instead. Versions come from the loaded modules themselves
+    (reading package metadata costs ~7 ms a package).
+    """
+    import sys
 
     from plantsim import __version__
 
-    versions = {"plantsim": __version__, "python": platform.python_version()}
-    for name in ("mujoco", "numpy", "scipy", "trimesh", "laspy", "rosbags"):
-        try:
-            versions[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            versions[name] = None
+    versions: dict = {"plantsim": __version__, "python": platform.python_version()}
+    not_loaded = []
+    for name in ("mujoco", "numpy", "scipy", "trimesh", "laspy", "rosbags", "embreex"):
+        from plantsim._lazy import is_loaded
+
+        module = sys.modules.get(name)
+        if module is None or not is_loaded(name):
+            not_loaded.append(name)
+            continue
+        version = getattr(module, "__version__", None)
+        if version is None:
+            from importlib import metadata
+
+            try:
+                version = metadata.version(name)
+            except metadata.PackageNotFoundError:
+                version = "unknown"
+        versions[name] = str(version)
+    versions["not_loaded"] = not_loaded
     return versions
 
 
