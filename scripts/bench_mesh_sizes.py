@@ -51,7 +51,7 @@ from plantsim.scan.raw import BeamGrid
 from plantsim.scan.schedule import StepScan
 from plantsim.sensor.casting import MujocoBackend
 from plantsim.sensor.spec import URG_04LX_UG01
-from benchkit import median_time  # noqa: E402 (scripts/ is on the path)
+from benchkit import child_env, median_time  # noqa: E402 (scripts/ is on the path)
 
 N_LEAVES = 12
 ACROSS = 8  # quads across a leaf
@@ -153,7 +153,7 @@ def main() -> None:
                 start = time.perf_counter()
                 proc = subprocess.Popen([sys.executable, "-m", "plantsim", "scan", str(path), "--up", "z", "--ideal",
                                          "--step-deg", str(args.step_deg), "-o", str(out)],
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=child_env())
                 _, status, usage = os.wait4(proc.pid, 0)
                 proc.returncode = os.waitstatus_to_exitcode(status)
                 if proc.returncode:

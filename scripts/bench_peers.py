@@ -34,13 +34,15 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchkit import child_env  # scripts/ is on the path
+
 HERE = Path(__file__).resolve().parent
 
 
 def run_once(cmd: list[str]) -> tuple[float, float]:
     """Wall and CPU time (user + system) of one child process, seconds."""
     start = time.perf_counter()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=child_env())
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - start
     proc.returncode = os.waitstatus_to_exitcode(status)
