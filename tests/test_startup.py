@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -68,3 +69,28 @@ def test_the_full_parser_still_has_every_command():
     choices = full._subparsers._group_actions[0].choices
     assert {"scan", "reconstruct", "calibrate", "rig", "study"} <= set(choices)
     assert set(scan_only._subparsers._group_actions[0].choices) == {"scan"}
+
+
+def test_a_kinematic_scan_cast_with_embree_never_loads_mujoco(tmp_path):
+    """The whole `plantsim scan` of a small plant, in its own process: MuJoCo's code never runs."""
+    pytest.importorskip("embreex", reason="without embreex the scan casts with MuJoCo")
+    mesh = tmp_path / "tetra.stl"
+    import trimesh
+
+    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0.02], [0, 0.05, 0.04], [0.01, 0.01, 0.2]],
+                    [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]).export(mesh)
+    out = tmp_path / "x.las"
+    code = ("import sys\n"
+            "from plantsim.cli.app import main\n"
+            f"sys.argv = ['plantsim', 'scan', {str(mesh)!r}, '--step-deg', '30', '-o', {str(out)!r}]\n"
+            "main()\n"
+            "from plantsim._lazy import is_loaded\n"
+            "print('mujoco loaded' if is_loaded('mujoco') or 'mujoco._structs' in sys.modules else 'no mujoco')\n")
+    for sensor in ("ideal", "realistic"):
+        result = subprocess.run([sys.executable, "-c", code.replace("'30',", f"'30', '--sensor', '{sensor}',")],
+                                capture_output=True, text=True)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.split("\n")[-2] == "no mujoco", result.stdout
+        sidecar = json.loads((tmp_path / "x.las.json").read_text())
+        assert "mujoco" in sidecar["versions"]["not_loaded"]
+        assert "MuJoCo not loaded" in sidecar["simulated"]["lidar"]["ray_caster_detail"]
