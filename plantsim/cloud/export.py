@@ -122,22 +122,28 @@ def _las_data(cloud: PointCloud):
     header.add_extra_dims([laspy.ExtraBytesParams(name=n, type=t, description=d)
                            for n, t, d in _LAS_EXTRA])
     header.generating_software = "plantsim"
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    # The point records are filled as one numpy structured array (laspy's per-dimension
+    # setters cost ~50 ms on a 150k-point cloud), with laspy's own rounding and range check.
+    records = np.zeros(len(cloud), dtype=header.point_format.dtype())
+    for axis, name in enumerate("XYZ"):
+        scaled = np.round((xyz[:, axis] - header.offsets[axis]) / header.scales[axis])
+        if len(scaled) and (scaled.max() > np.iinfo(np.int32).max or scaled.min() < np.iinfo(np.int32).min):
+            raise OverflowError("Values given do not fit after applying offset and scale")
+        records[name] = scaled
     cols = _columns(cloud)
-    las.classification = cols["classification"]
-    las.intensity = np.round(cols["intensity"].astype(np.float64) * 65535).astype(np.uint16)
-    las.gps_time = cols["time"]
-    # One return per pulse: the simulated and the real URG-04LX report the
-    # first echo only (LAS 1.4 R15 table 7 requires 1..15, never 0).
-    las.return_number = np.ones(len(cloud), np.uint8)
-    las.number_of_returns = np.ones(len(cloud), np.uint8)
+    records["classification"] = cols["classification"]
+    records["intensity"] = np.round(cols["intensity"].astype(np.float64) * 65535).astype(np.uint16)
+    records["gps_time"] = cols["time"]
+    # One return per pulse: the simulated and the real URG-04LX report the first echo
+    # only (LAS 1.4 R15 table 7 requires 1..15, never 0). Point format 6 packs the
+    # return number in bits 0-3 and the number of returns in bits 4-7 of one byte.
+    records["bit_fields"] = 1 | (1 << 4)
     # Point source id: the scan line (turntable step) when it fits 16 bits.
     if len(cloud) and int(cloud.scan_index.max()) <= 0xFFFF:
-        las.point_source_id = cloud.scan_index.astype(np.uint16)
+        records["point_source_id"] = cloud.scan_index.astype(np.uint16)
     for name, _, _ in _LAS_EXTRA:
-        las[name] = cols[name]
-    return las
+        records[name] = cols[name]
+    return laspy.LasData(header, points=laspy.PackedPointRecord(records, header.point_format))
 
 
 def to_las(cloud: PointCloud) -> bytes:

@@ -85,6 +85,16 @@ class ScanResult:
     lines_resumed: int = 0
 
 
+def _dist_info_version(module, name: str) -> str | None:
+    """The version in ``NAME-VERSION.dist-info`` beside an installed package, or None."""
+    try:
+        site = Path(module.__file__).resolve().parent.parent
+    except (AttributeError, TypeError):
+        return None
+    found = sorted(site.glob(f"{name}-*.dist-info"))
+    return found[0].name[len(name) + 1:-len(".dist-info")] if len(found) == 1 else None
+
+
 def library_versions() -> dict:
     """Versions of plantsim, Python and the libraries this run loaded (no slow imports).
 
@@ -106,7 +116,9 @@ def library_versions() -> dict:
         if module is None or not is_loaded(name):
             not_loaded.append(name)
             continue
-        version = getattr(module, "__version__", None)
+        # embreex reads its __version__ from package metadata (importing importlib.metadata,
+        # ~15 ms); the dist-info folder beside it names the same version.
+        version = _dist_info_version(module, name) if name == "embreex" else getattr(module, "__version__", None)
         if version is None:
             from importlib import metadata
 
