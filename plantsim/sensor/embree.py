@@ -60,6 +60,27 @@ def embree_available() -> bool:
     return True
 
 
+def embreex_mesh_input(vertices: np.ndarray, faces: np.ndarray) -> dict:
+    """Arguments for ``embreex``'s ``TriangleMesh`` that it copies ~10x faster than float/int arrays.
+
+    embreex copies its input into Embree's buffers element by element through Python
+    indexing: ``vertices[i, k]`` and ``faces[i][k]``. On numeric arrays each access
+    makes a numpy scalar, and each ``faces[i]`` a row view (6.8 s for a 1 M-face mesh on
+    a loaded machine). Handed an object array of Python floats (the float32 values,
+    exactly) and a 1-D object array of index tuples, the same loop reads existing
+    Python objects: 0.64 s, conversion included. Embree receives the same float32
+    vertices and the same indices (a test compares hits with the plain form).
+
+    Args:
+      vertices: (n, 3) float, metres; rounded to float32 as Embree stores them.
+      faces: (m, 3) int vertex indices.
+    """
+    as_f32 = np.asarray(vertices, dtype=np.float32)
+    face_rows = np.empty(len(faces), dtype=object)
+    face_rows[:] = list(zip(*np.asarray(faces, dtype=np.int64).T.tolist()))
+    return {"vertices": as_f32.astype(np.float64).astype(object), "indices": face_rows}
+
+
 class EmbreeBackend:
     """Casts the turning mesh geoms with Embree, everything else with MuJoCo (see the module docstring)."""
 
@@ -88,11 +109,8 @@ class EmbreeBackend:
         from embreex.mesh_construction import TriangleMesh
 
         self.triangles = vertices[faces]
-        # embreex copies its input element by element: the indexed form (one copy per
-        # shared vertex, not three) builds about twice as fast.
         self._embree = rtcore_scene.EmbreeScene()
-        TriangleMesh(scene=self._embree, vertices=np.ascontiguousarray(vertices, dtype=np.float32),
-                     indices=np.ascontiguousarray(faces, dtype=np.int32))
+        TriangleMesh(scene=self._embree, **embreex_mesh_input(vertices, faces))
 
     def _init_from_layout(self, scene: Scene) -> None:
         """The plant's own triangles for Embree, the rig's primitives analytic: no MuJoCo."""
