@@ -252,7 +252,7 @@ def test_wheat_is_sized_like_wheat(seed):
 @pytest.mark.parametrize(
     ("make", "params", "message"),
     [
-        (make_maize, {"n_leaves": 0}, r"n_leaves must be an integer in \[1, 20\], got 0"),
+        (make_maize, {"n_leaves": 0}, r"n_leaves must be an integer in \[1, 30\], got 0"),
         (make_maize, {"n_leaves": 2.5}, r"n_leaves must be an integer"),
         (make_maize, {"stem_sides": 12}, r"stem_sides must be an integer in \[24, 256\], got 12"),
         (make_maize, {"stem_diameter": -0.01}, r"stem_diameter must be a number in \(0.0, 0.1\] m"),
