@@ -1233,6 +1233,10 @@ def make_dicot(*, seed: int = 0, **params: Any) -> ProceduralPlant:
         for b, (role, base, blade_azimuth, scale) in enumerate(blades):
             index = len(leaves)
             jitter = blade_u[:, k, b]
+            # Each lamina starts a petiole radius out along its own azimuth (a short
+            # petiolule), so the three leaflets of a trifoliate leaf share no point.
+            base = base + 0.5 * p.petiole_diameter * np.array(
+                [math.cos(blade_azimuth), math.sin(blade_azimuth), 0.0])
             shape = _LeafShape(
                 base=base, azimuth=blade_azimuth + 0.1 * jitter[0],
                 length=p.leaflet_length * size * scale * (1.0 + 0.5 * p.size_jitter * jitter[1]),
@@ -1292,3 +1296,26 @@ def to_stl_bytes(plant: ProceduralPlant) -> bytes:
     records["normal"] = normals
     records["vertices"] = tri
     return header + struct.pack("<I", len(tri)) + records.tobytes()
+
+
+def to_labelled_obj_bytes(plant: ProceduralPlant) -> bytes:
+    """The plant's mesh as Wavefront OBJ with one object per organ (metres, plant frame).
+
+    Objects are named ``<part>_<organ>`` (``stem_0``, ``leaf_3``, ``petiole_2``,
+    ``ear_1``, ``branch_0``), so :func:`plantsim.plant.labels.read_labelled_parts` and
+    ``plantsim scan MESH --evaluate`` read stems and leaves from the file itself.
+    Coordinates are written with 17 significant digits (float64 round trip).
+    """
+    lines = [f"# plantsim procedural {plant.name} seed={plant.traits['seed']} units=m up=z"]
+    lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in plant.vertices_m.tolist()]
+    keys = np.stack([plant.face_part, plant.face_organ], axis=1)
+    order = np.lexsort((plant.face_organ, plant.face_part))
+    last = None
+    for i in order:
+        key = (int(keys[i, 0]), int(keys[i, 1]))
+        if key != last:
+            lines.append(f"o {PART_NAMES[key[0]]}_{key[1]}")
+            last = key
+        a, b, c = plant.faces[i] + 1
+        lines.append(f"f {a} {b} {c}")
+    return ("\n".join(lines) + "\n").encode("ascii")
