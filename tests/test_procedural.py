@@ -490,3 +490,14 @@ def test_dicot_invalid_parameters_are_rejected(params, message):
 
     with pytest.raises(ValueError, match=message):
         make_dicot(**params)
+
+
+def test_extra_plants_are_written_with_labels_and_truth(tmp_path):
+    from plantsim.evaluation.evaluate import truth_from_labelled_mesh
+
+    written = _load_script().write_extra_plants(tmp_path)
+    assert len(written) == 2 * len(_load_script().EXTRA_PLANTS)
+    truth = json.loads((tmp_path / "dicot.obj.traits.json").read_text())
+    labelled = truth_from_labelled_mesh(tmp_path / "dicot.obj", n_samples_per_m2=0)
+    assert labelled["leaf_count"] == len(truth["leaves"]) == 24
+    assert labelled["leaf_area_m2"] == pytest.approx(truth["leaf_area_m2"], rel=1e-8)
