@@ -501,3 +501,22 @@ def test_extra_plants_are_written_with_labels_and_truth(tmp_path):
     labelled = truth_from_labelled_mesh(tmp_path / "dicot.obj", n_samples_per_m2=0)
     assert labelled["leaf_count"] == len(truth["leaves"]) == 24
     assert labelled["leaf_area_m2"] == pytest.approx(truth["leaf_area_m2"], rel=1e-8)
+
+
+def test_cli_plant_make_writes_mesh_and_truth(tmp_path, capsys):
+    from plantsim.cli.app import main
+    from plantsim.evaluation.evaluate import truth_from_labelled_mesh, truth_traits_path
+
+    out = tmp_path / "bean.obj"
+    assert main(["plant", "make", "dicot", "--seed", "3", "--set", "n_leaves=4", "--set", "leaflets=1",
+                 "-o", str(out)]) == 0
+    assert "4 leaves" in capsys.readouterr().out
+    truth = json.loads(truth_traits_path(out).read_text())
+    assert truth["params"]["n_leaves"] == 4 and truth["seed"] == 3
+    assert truth_from_labelled_mesh(out, n_samples_per_m2=0)["leaf_count"] == 4
+    assert main(["plant", "make", "maize", "-o", str(tmp_path / "m.stl")]) == 0
+    assert (tmp_path / "m.traits.json").is_file()
+    assert main(["plant", "make", "dicot", "--set", "leaflets=2", "-o", str(out)]) == 2
+    assert "leaflets must be 1 (simple leaves) or 3 (trifoliate), got 2" in capsys.readouterr().err
+    assert main(["plant", "make", "dicot", "-o", str(tmp_path / "x.ply")]) == 2
+    assert "give -o MESH ending in .obj or .stl" in capsys.readouterr().err

@@ -267,10 +267,46 @@ def test_colour_rules_and_legend():
 
 
 def test_truth_notes_name_missing_and_unknown_keys():
-    assert evaluate.truth_notes({"height_m": 0.3, "stems": [{"base_xy_m": [0, 0]}], "stem_distances_m": [],
-                                 "leaves": [{}], "leaf_area_m2": 0.01, "convex_hull_volume_m3": 1e-3,
-                                 "projected_area_xy_m2": 0.02}) == ["truth lacks stem_distances_m: those "
-                                                                    "traits are not compared"]
+    full = {"height_m": 0.3, "stems": [{"base_xy_m": [0, 0]}], "stem_distances_m": [], "leaves": [{}],
+            "leaf_area_m2": 0.01, "convex_hull_volume_m3": 1e-3, "projected_area_xy_m2": 0.02}
+    # One stem: no distance between stems is expected.
+    assert evaluate.truth_notes(full) == []
+    two = dict(full, stems=[{"base_xy_m": [0, 0]}, {"base_xy_m": [0.04, 0]}])
+    assert evaluate.truth_notes(two) == ["truth has no stem_distances_m: not compared"]
     notes = evaluate.truth_notes({"height_m": 0.3, "plant_height_mm": 300})
-    assert notes[0].startswith("truth lacks stems, stem_distances_m, leaves, leaf_area_m2")
-    assert notes[1] == "truth keys not in the schema, ignored: plant_height_mm"
+    assert notes[0] == "truth lacks stems, leaves, leaf_area_m2: those traits are not compared"
+    assert notes[1] == "truth has no convex_hull_volume_m3, projected_area_xy_m2: not compared"
+    assert notes[2] == "truth keys not in the schema, ignored: plant_height_mm"
+
+
+def test_evaluate_notes_a_truth_without_leaves_and_still_compares_height(tmp_path, caplog):
+    path = tmp_path / "plant.obj"
+    _write_obj(path, _parts())
+    (tmp_path / "plant.traits.json").write_text('{"height_m": 0.4}')
+    plant = load_plant(path)
+    mesh = trimesh.Trimesh(plant.vertices_turntable, plant.faces, process=False)
+    pts, _ = trimesh.sample.sample_surface(mesh, 20_000, seed=1)
+    with caplog.at_level("INFO", logger="plantsim.evaluation.evaluate"):
+        ev = evaluate.evaluate_cloud(pts, plant, threads=1)
+    assert "truth lacks stems, leaves, leaf_area_m2: those traits are not compared" in caplog.text
+    assert ev.traits["height_m"].reference == pytest.approx(0.4)
+    with pytest.raises(KeyError):
+        ev.traits["leaf_area_m2"]
+
+
+def test_truth_from_obj_vertex_colours_and_a_glb_with_vertex_colours():
+    plant = make_rosette(seed=4, n_leaves=4)
+    face_rgb = _organ_colours(plant, instance=True)
+    vertex_rgb = np.zeros((len(plant.vertices_m), 3), dtype=np.int64)
+    vertex_rgb[plant.faces.reshape(-1)] = np.repeat(face_rgb, 3, axis=0)
+    lines = [f"v {x!r} {y!r} {z!r} {r / 255:.6f} {g / 255:.6f} {b / 255:.6f}"
+             for (x, y, z), (r, g, b) in zip(plant.vertices_m.tolist(), vertex_rgb.tolist())]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in plant.faces.tolist()]
+    truth = evaluate.truth_from_labelled_mesh("\n".join(lines).encode(), file_type="obj", n_samples_per_m2=0)
+    _check_exact(truth, plant)
+    # One GLB mesh (no organ names) whose COLOR_0 says the organs.
+    mesh = trimesh.Trimesh(plant.vertices_m, plant.faces, vertex_colors=vertex_rgb.astype(np.uint8),
+                           process=False)
+    glb = trimesh.Scene({"plant": mesh}).export(file_type="glb")
+    _check_exact(evaluate.truth_from_labelled_mesh(glb, file_type="glb", n_samples_per_m2=0), plant,
+                 area_rel=2e-6)

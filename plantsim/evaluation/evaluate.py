@@ -276,25 +276,38 @@ def truth_from_labelled_mesh(path: str | Path | bytes, *, units_scale: float = 1
     return truth
 
 
-# The truth-file schema's keys (docs/traits.md, "Truth files"); all optional.
-TRUTH_KEYS = ("height_m", "stems", "stem_distances_m", "leaves", "leaf_area_m2",
-              "convex_hull_volume_m3", "projected_area_xy_m2")
+# The truth-file schema's keys (docs/traits.md, "Truth files"); all optional. The core
+# keys carry the traits every scan is measured on; the others are extras.
+TRUTH_CORE_KEYS = ("height_m", "stems", "leaves", "leaf_area_m2")
+TRUTH_EXTRA_KEYS = ("stem_distances_m", "convex_hull_volume_m3", "projected_area_xy_m2")
+TRUTH_KEYS = TRUTH_CORE_KEYS + TRUTH_EXTRA_KEYS
+_TRUTH_INFO_KEYS = {"name", "generator", "seed", "params", "units", "up", "source", "stem_diameter_m",
+                    "mean_stem_distance_m", "mean_nearest_stem_distance_m", "leaf_width_m",
+                    "leaf_length_m", "n_vertices", "n_faces", "stem_count", "leaf_count", "petioles",
+                    "branches"}
 
 
 def truth_notes(truth: Mapping[str, Any]) -> list[str]:
-    """Notes on a truth dict: which schema keys it lacks (their traits are skipped).
+    """Notes on a truth dict: the schema keys it lacks (their traits are skipped) and the
+    keys it has outside the schema (ignored).
 
     Returns:
-        One sentence per missing group of keys; empty when every key is present.
+        Sentences: "truth lacks ..." for core keys (height, stems, leaves, leaf area),
+        "truth has no ..." for extras (stem distances with two stems or more, hull
+        volume, projected area), "truth keys not in the schema ...". Empty when all is there.
     """
-    missing = [key for key in TRUTH_KEYS if truth.get(key) in (None, [], ())]
+    def absent(key: str) -> bool:
+        return truth.get(key) in (None, [], ())
+
     notes = []
-    if missing:
-        notes.append(f"truth lacks {', '.join(missing)}: those traits are not compared")
-    unknown = sorted(set(truth) - set(TRUTH_KEYS) - {
-        "name", "generator", "seed", "params", "units", "up", "source", "stem_diameter_m",
-        "mean_stem_distance_m", "mean_nearest_stem_distance_m", "leaf_width_m", "leaf_length_m",
-        "n_vertices", "n_faces", "stem_count", "leaf_count", "petioles", "branches"})
+    core = [key for key in TRUTH_CORE_KEYS if absent(key)]
+    if core:
+        notes.append(f"truth lacks {', '.join(core)}: those traits are not compared")
+    n_stems = len(truth.get("stems") or ())
+    extra = [key for key in TRUTH_EXTRA_KEYS if absent(key) and (key != "stem_distances_m" or n_stems >= 2)]
+    if extra:
+        notes.append(f"truth has no {', '.join(extra)}: not compared")
+    unknown = sorted(set(truth) - set(TRUTH_KEYS) - _TRUTH_INFO_KEYS)
     if unknown:
         notes.append(f"truth keys not in the schema, ignored: {', '.join(unknown)}")
     return notes
@@ -412,7 +425,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
         except json.JSONDecodeError as exc:
             raise ValueError(f"truth_path: {found} is not valid JSON: {exc}") from exc
         for note in truth_notes(truth) if isinstance(truth, Mapping) else ():
-            logger.warning("%s: %s", found or plant.source, note)
+            logger.log(logging.INFO if note.startswith("truth has no") else logging.WARNING,
+                       "%s: %s", found or plant.source, note)
         try:
             reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
             estimate = (traits.extract_traits(pts, settings=options.trait_settings)
