@@ -101,9 +101,9 @@ def estimate_of(points) -> tuple[dict, tuple[str, ...]]:
     """Traits of a cloud, keyed as TRAITS, and the method's notes."""
     e = extract_traits(points)
     out = {key: float(getattr(e, key)) for key, *_ in TRAITS if hasattr(e, key)}
-    out["median_leaf_width_m"] = _nan_median(e.leaf_widths_m)
-    out["mean_leaf_inclination_deg"] = _nan_mean(e.leaf_inclinations_deg)
-    return out, tuple(e.notes)
+    out["median_leaf_width_m"] = _nan_median(getattr(e, "leaf_widths_m", ()))
+    out["mean_leaf_inclination_deg"] = _nan_mean(getattr(e, "leaf_inclinations_deg", ()))
+    return out, tuple(getattr(e, "notes", ()))
 
 
 def _scan(config: RunConfig, plant) -> tuple[dict, tuple[str, ...], int, float]:
@@ -112,9 +112,9 @@ def _scan(config: RunConfig, plant) -> tuple[dict, tuple[str, ...], int, float]:
     points = result.cloud.plant_only().points_turntable
     try:
         estimate, notes = estimate_of(points)
-    except (ValueError, RuntimeError, MemoryError) as exc:
-        # The method failing on one cloud is a finding for the table, not a reason to stop.
-        estimate, notes = {}, (f"trait extraction failed: {exc}",)
+    except Exception as exc:  # noqa: BLE001 - any failure of the method is a finding, not a stop
+        # The method failing on one cloud is a row of "not found" and a note naming the error.
+        estimate, notes = {}, (f"trait extraction failed: {type(exc).__name__}: {exc}",)
     return estimate, notes, len(points), time.perf_counter() - t0
 
 
