@@ -252,7 +252,7 @@ def test_wheat_is_sized_like_wheat(seed):
 @pytest.mark.parametrize(
     ("make", "params", "message"),
     [
-        (make_maize, {"n_leaves": 0}, r"n_leaves must be an integer in \[1, 20\], got 0"),
+        (make_maize, {"n_leaves": 0}, r"n_leaves must be an integer in \[1, 30\], got 0"),
         (make_maize, {"n_leaves": 2.5}, r"n_leaves must be an integer"),
         (make_maize, {"stem_sides": 12}, r"stem_sides must be an integer in \[24, 256\], got 12"),
         (make_maize, {"stem_diameter": -0.01}, r"stem_diameter must be a number in \(0.0, 0.1\] m"),
@@ -360,3 +360,163 @@ def test_rosette_leaves_overlap_when_crowded_and_params_are_checked():
         make_rosette(n_tillers=2)
     again = make_rosette(seed=0, n_leaves=30)
     assert np.array_equal(again.vertices_m, make_rosette(seed=0, n_leaves=30).vertices_m)
+
+
+# -------------------------------------------------------------------------- dicot
+
+
+def _heron_leaf_areas(plant):
+    """Per-leaf area by a brute-force loop over the leaf faces (Heron's formula)."""
+    areas = {}
+    tri_area = _triangle_areas(plant.vertices_m, plant.faces)
+    for face, (part, organ) in enumerate(zip(plant.face_part.tolist(), plant.face_organ.tolist())):
+        if part == PART_LEAF:
+            areas[organ] = areas.get(organ, 0.0) + float(tri_area[face])
+    return areas
+
+
+@pytest.mark.parametrize("kw", [{}, {"leaflets": 1, "n_leaves": 3}, {"n_branches": 2, "leaves_per_branch": 2},
+                                {"n_leaves": 30, "leaflets": 1}])
+def test_dicot_exact_traits_against_brute_force(kw):
+    from plantsim.plant.procedural import PART_BRANCH, PART_PETIOLE, make_dicot
+
+    plant = make_dicot(seed=5, **kw)
+    t = plant.traits
+    n_laminae = plant.params.n_leaves * plant.params.leaflets
+    assert len(t["leaves"]) == n_laminae == len(np.unique(plant.face_organ[plant.face_part == PART_LEAF]))
+    heron = _heron_leaf_areas(plant)
+    for leaf in t["leaves"]:
+        assert leaf["area_m2"] == pytest.approx(heron[leaf["index"]], rel=1e-9)
+        grid, tip = _leaf_grid(plant, leaf["index"])
+        midrib = np.concatenate([grid[:, grid.shape[1] // 2], tip[None]])
+        assert leaf["length_m"] == pytest.approx(np.linalg.norm(np.diff(midrib, axis=0), axis=1).sum(), rel=1e-12)
+        assert leaf["width_m"] == pytest.approx(np.linalg.norm(grid[:, 0] - grid[:, -1], axis=1).max(), rel=1e-12)
+        chord = tip - midrib[0]
+        assert leaf["inclination_deg"] == pytest.approx(np.degrees(np.arctan2(chord[2], np.hypot(*chord[:2]))))
+        assert 0.0 < leaf["width_m"] < leaf["length_m"] < 0.2
+    assert t["leaf_area_m2"] == pytest.approx(sum(heron.values()), rel=1e-9)
+    # Petioles: one per petiolate leaf, each naming its laminae; branches as asked.
+    assert len(t["petioles"]) == plant.params.n_leaves
+    assert sorted(i for pt in t["petioles"] for i in pt["leaves"]) == list(range(n_laminae))
+    assert len(np.unique(plant.face_organ[plant.face_part == PART_PETIOLE])) == plant.params.n_leaves
+    assert len(t["branches"]) == plant.params.n_branches
+    assert len(np.unique(plant.face_organ[plant.face_part == PART_BRANCH])) == plant.params.n_branches
+    (stem,) = t["stems"]
+    ring, centre = _bottom_ring(plant, 0)
+    assert 2 * np.linalg.norm(ring - centre, axis=1).max() == pytest.approx(stem["diameter_m"], rel=1e-9)
+    assert t["height_m"] == plant.vertices_m[:, 2].max() and plant.vertices_m[:, 2].min() == 0.0
+
+
+@pytest.mark.parametrize("n_leaves", [3, 7, 12, 20, 30])
+@pytest.mark.parametrize("generator", ["maize", "rosette", "dicot"])
+def test_leaf_count_parameter_is_honoured_from_3_to_30(generator, n_leaves):
+    from plantsim.plant import procedural
+
+    plant = getattr(procedural, f"make_{generator}")(seed=n_leaves, n_leaves=n_leaves, **(
+        {"leaflets": 1} if generator == "dicot" else {}))
+    assert len(plant.traits["leaves"]) == n_leaves
+    leaf = plant.face_part == PART_LEAF
+    assert sorted(np.unique(plant.face_organ[leaf])) == list(range(n_leaves))
+    # Labels are consistent: every face labelled, every leaf index once in the traits.
+    assert [lf["index"] for lf in plant.traits["leaves"]] == list(range(n_leaves))
+    assert len(plant.face_part) == len(plant.face_organ) == len(plant.faces)
+
+
+def test_dicot_is_deterministic_and_fits_the_default_rig():
+    from plantsim.plant.mesh import plant_from_arrays
+    from plantsim.plant.procedural import make_dicot
+    from plantsim.rig.fit import rig_fit_warnings
+    from plantsim.rig.geometry import RigGeometry
+    from plantsim.sensor.spec import URG_04LX_UG01
+
+    a, b, c = make_dicot(seed=4), make_dicot(seed=4), make_dicot(seed=5)
+    assert np.array_equal(a.vertices_m, b.vertices_m) and traits_to_json(a) == traits_to_json(b)
+    assert not np.array_equal(a.vertices_m, c.vertices_m)
+    for kw in ({}, {"n_leaves": 30}, {"n_branches": 3, "n_leaves": 12}, {"leaflets": 1, "n_leaves": 3}):
+        plant = make_dicot(seed=1, **kw)
+        placed = plant_from_arrays(plant.vertices_m, plant.faces)
+        assert rig_fit_warnings(placed, RigGeometry(), URG_04LX_UG01) == [], kw
+        assert 0.25 <= plant.traits["height_m"] <= 0.45
+
+
+def _touching_pairs(plant, gap=0.003, away=0.03):
+    """Pairs of leaves whose vertices come within ``gap`` m of each other away from the
+    stem (farther than ``away`` m from the axis, where every collar meets)."""
+    from scipy.spatial import cKDTree
+
+    v, leaf = plant.vertices_m, plant.face_part == PART_LEAF
+    pts = {}
+    for k in np.unique(plant.face_organ[leaf]).tolist():
+        ids = np.unique(plant.faces[leaf & (plant.face_organ == k)])
+        pts[k] = v[ids][np.hypot(v[ids, 0], v[ids, 1]) > away]
+    trees = {k: cKDTree(p) for k, p in pts.items() if len(p)}
+    return sum(1 for a in trees for b in trees
+               if a < b and trees[a].query(pts[b], distance_upper_bound=gap)[0].min() < gap)
+
+
+def test_touching_leaves_are_a_parameter_setting():
+    from plantsim.plant.procedural import make_dicot, make_rosette
+
+    assert _touching_pairs(make_maize(seed=0, n_leaves=6)) == 0
+    # Small phyllotaxy spread and short internodes stack the maize leaves onto each other.
+    assert _touching_pairs(make_maize(seed=0, n_leaves=6, phyllotaxy_deg=10.0, phyllotaxy_jitter_deg=0.0,
+                                      lowest_leaf_fraction=0.3, highest_leaf_fraction=0.4)) >= 2
+    assert _touching_pairs(make_dicot(seed=0, n_leaves=10, leaflets=1)) == 0
+    assert _touching_pairs(make_dicot(seed=0, n_leaves=10, leaflets=1, stem_length=0.12, leaflet_length=0.11,
+                                      leaflet_width=0.08, phyllotaxy_deg=30.0, lowest_node_fraction=0.5)) >= 3
+    assert _touching_pairs(make_rosette(seed=0, n_leaves=6)) == 0
+    assert _touching_pairs(make_rosette(seed=0, n_leaves=30)) >= 10
+
+
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"n_leaves": 31}, r"n_leaves must be an integer in \[1, 30\], got 31"),
+        ({"leaflets": 2}, r"leaflets must be 1 \(simple leaves\) or 3 \(trifoliate\), got 2"),
+        ({"leaflet_width": 0.1, "leaflet_length": 0.08}, r"leaflet_width must be less than leaflet_length"),
+        ({"petiole_length": 0.005}, r"petiole_diameter must be at most petiole_length / 4"),
+        ({"n_branches": 3, "leaves_per_branch": 3, "n_leaves": 8}, r"n_leaves must be at least n_branches \* "
+                                                                   r"\(leaves_per_branch \+ 1\) = 12"),
+        ({"leaf_angle_deg": 5.0}, r"leaf_angle_deg must be a number in \[10.0, 110.0\] deg, got 5.0"),
+        ({"phyllotaxy_deg": -1}, r"phyllotaxy_deg must be a number in \[0.0, 360.0\] deg"),
+        ({"leaf_width_segments": 7}, r"leaf_width_segments must be even"),
+        ({"highest_node_fraction": 0.2}, r"highest_node_fraction must be at least lowest_node_fraction"),
+        ({"leaf_lenght": 0.1}, r"unknown DicotParams field\(s\) \['leaf_lenght'\]; valid names: n_leaves"),
+        ({"seed": -2}, r"seed must be a non-negative integer, got -2"),
+    ],
+)
+def test_dicot_invalid_parameters_are_rejected(params, message):
+    from plantsim.plant.procedural import make_dicot
+
+    with pytest.raises(ValueError, match=message):
+        make_dicot(**params)
+
+
+def test_extra_plants_are_written_with_labels_and_truth(tmp_path):
+    from plantsim.evaluation.evaluate import truth_from_labelled_mesh
+
+    written = _load_script().write_extra_plants(tmp_path)
+    assert len(written) == 2 * len(_load_script().EXTRA_PLANTS)
+    truth = json.loads((tmp_path / "dicot.obj.traits.json").read_text())
+    labelled = truth_from_labelled_mesh(tmp_path / "dicot.obj", n_samples_per_m2=0)
+    assert labelled["leaf_count"] == len(truth["leaves"]) == 24
+    assert labelled["leaf_area_m2"] == pytest.approx(truth["leaf_area_m2"], rel=1e-8)
+
+
+def test_cli_plant_make_writes_mesh_and_truth(tmp_path, capsys):
+    from plantsim.cli.app import main
+    from plantsim.evaluation.evaluate import truth_from_labelled_mesh, truth_traits_path
+
+    out = tmp_path / "bean.obj"
+    assert main(["plant", "make", "dicot", "--seed", "3", "--set", "n_leaves=4", "--set", "leaflets=1",
+                 "-o", str(out)]) == 0
+    assert "4 leaves" in capsys.readouterr().out
+    truth = json.loads(truth_traits_path(out).read_text())
+    assert truth["params"]["n_leaves"] == 4 and truth["seed"] == 3
+    assert truth_from_labelled_mesh(out, n_samples_per_m2=0)["leaf_count"] == 4
+    assert main(["plant", "make", "maize", "-o", str(tmp_path / "m.stl")]) == 0
+    assert (tmp_path / "m.traits.json").is_file()
+    assert main(["plant", "make", "dicot", "--set", "leaflets=2", "-o", str(out)]) == 2
+    assert "leaflets must be 1 (simple leaves) or 3 (trifoliate), got 2" in capsys.readouterr().err
+    assert main(["plant", "make", "dicot", "-o", str(tmp_path / "x.ply")]) == 2
+    assert "give -o MESH ending in .obj or .stl" in capsys.readouterr().err

@@ -357,6 +357,7 @@ def build_parser(*, only_scan: bool = False) -> argparse.ArgumentParser:
     __import__("plantsim.cli.render", fromlist=["add_render_command"]).add_render_command(sub)
     __import__("plantsim.cli.urg", fromlist=["add_urg_commands"]).add_urg_commands(sub)
     __import__("plantsim.cli.traits", fromlist=["add_traits_command"]).add_traits_command(sub)
+    __import__("plantsim.cli.plant", fromlist=["add_plant_commands"]).add_plant_commands(sub)
     return parser
 
 

@@ -32,6 +32,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from plantsim.evaluation import metrics, traits
+from plantsim.plant import labels
 from plantsim.plant.mesh import PlantMesh
 from plantsim.validation import SettingTypeError, check_bool
 
@@ -180,114 +181,47 @@ def truth_in_turntable(truth: Mapping[str, Any], T_turntable_mesh: Any) -> dict[
     return out
 
 
-# Part names that say what a labelled mesh's part is (case-insensitive substrings).
-STEM_NAMES = ("stem", "stalk", "culm", "tiller", "trunk")
-LEAF_NAMES = ("leaf", "blade", "lamina")
-# PLY face properties read as part labels: 0 stem, k >= 1 leaf k (``label``/``part``).
-PLY_LABEL_PROPERTIES = ("label", "part", "organ")
+# Part names and label properties read by plantsim.plant.labels (kept here for callers).
+STEM_NAMES = labels.STEM_NAMES
+LEAF_NAMES = labels.LEAF_NAMES
+PLY_LABEL_PROPERTIES = labels.LABEL_PROPERTIES
 
 
-def _part_kind(name: str) -> str | None:
-    low = name.lower()
-    if any(word in low for word in LEAF_NAMES):
-        return "leaf"
-    if any(word in low for word in STEM_NAMES):
-        return "stem"
-    return None
-
-
-def _labelled_parts(path: Path) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
-    """(kind, name, vertices, faces) of each stem/leaf part a mesh file names.
-
-    Read: separate objects or named groups (OBJ ``o``/``g``, GLB/glTF nodes, any
-    format trimesh loads as a scene of named geometries) and an integer PLY face
-    property (:data:`PLY_LABEL_PROPERTIES`: 0 stem, k >= 1 leaf k). Parts whose
-    name says neither stem nor leaf are left out.
-    """
-    import trimesh
-
-    if path.suffix.lower() == ".obj":
-        return _obj_parts(path)
-    loaded = trimesh.load(str(path), process=False)
-    parts = []
-    if isinstance(loaded, trimesh.Scene):
-        for node in loaded.graph.nodes_geometry:
-            T, geom_name = loaded.graph[node]
-            geom = loaded.geometry[geom_name]
-            kind = _part_kind(str(node)) or _part_kind(str(geom_name))
-            if kind is None or not isinstance(geom, trimesh.Trimesh):
-                continue
-            v = trimesh.transform_points(np.asarray(geom.vertices, dtype=np.float64), T)
-            parts.append((kind, str(node), v, np.asarray(geom.faces, dtype=np.int64)))
-        return parts
-    raw = (loaded.metadata or {}).get("_ply_raw", {}).get("face", {}).get("data")
-    names = raw.keys() if isinstance(raw, Mapping) else (getattr(getattr(raw, "dtype", None), "names", None) or ())
-    if raw is not None:
-        for prop in PLY_LABEL_PROPERTIES:
-            if prop in names:
-                labels = np.asarray(raw[prop]).reshape(-1).astype(np.int64)
-                v = np.asarray(loaded.vertices, dtype=np.float64)
-                f = np.asarray(loaded.faces, dtype=np.int64)
-                for k in np.unique(labels):
-                    kind = "stem" if k == 0 else "leaf"
-                    parts.append((kind, f"{prop}={k}", v, f[labels == k]))
-                break
-    return parts
-
-
-def _obj_parts(path: Path) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
-    """Stem/leaf parts of an OBJ by its ``o``/``g`` names (polygons fan-triangulated)."""
-    vertices: list[list[float]] = []
-    faces_by_name: dict[str, list[list[int]]] = {}
-    name = ""
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for line in fh:
-            fields = line.split()
-            if not fields:
-                continue
-            if fields[0] == "v":
-                vertices.append([float(x) for x in fields[1:4]])
-            elif fields[0] in ("o", "g"):
-                name = " ".join(fields[1:])
-            elif fields[0] == "f":
-                idx = [int(f.split("/")[0]) for f in fields[1:]]
-                idx = [i - 1 if i > 0 else len(vertices) + i for i in idx]
-                faces_by_name.setdefault(name, []).extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
-    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    parts = []
-    for part, faces in faces_by_name.items():
-        kind = _part_kind(part)
-        if kind is not None:
-            parts.append((kind, part, v, np.asarray(faces, dtype=np.int64)))
-    return parts
-
-
-def truth_from_labelled_mesh(path: str | Path, *, units_scale: float = 1.0,
-                             n_samples_per_m2: float = 4.0e6) -> dict[str, Any] | None:
+def truth_from_labelled_mesh(path: str | Path | bytes, *, units_scale: float = 1.0,
+                             n_samples_per_m2: float = 4.0e6, file_type: str | None = None,
+                             legend: Mapping[tuple[int, int, int], str] | None = None,
+                             stem_label: int = 0) -> dict[str, Any] | None:
     """Exact traits of a mesh that says which faces are stems and leaves.
 
-    Computed from the mesh itself, in the traits-JSON schema of
-    :func:`plantsim.evaluation.traits.traits_from_truth` (mesh frame, metres, z up):
-    ``height_m`` (top of all parts above the lowest stem vertex, or the lowest
-    vertex without a stem); per stem ``base_xy_m`` and ``diameter_m`` (algebraic
+    The parts are read by :func:`plantsim.plant.labels.read_labelled_parts`: named
+    objects/groups/scene nodes, integer face or vertex labels, face or vertex colours.
+    Computed from the mesh itself, in the truth-file schema of docs/traits.md
+    ("Truth files"; :func:`plantsim.evaluation.traits.traits_from_truth`), mesh frame,
+    metres, z up: ``height_m`` (top of all parts above the lowest stem vertex, or the
+    lowest vertex without a stem); per stem ``base_xy_m`` and ``diameter_m`` (algebraic
     circle fit, :func:`plantsim.evaluation.traits.fit_circle`, to the stem's vertices in
     its lowest 10 % of height) and ``height_m`` (its z extent); per leaf ``area_m2``
     (the sum of its triangle areas: one side of a sheet; a closed thin solid counts
     both sides, so halve it), ``length_m`` and ``width_m`` (the cloud method's
     midrib geodesic and cross width, :func:`plantsim.evaluation.traits.leaf_length_width`,
     on a dense uniform sampling of that leaf alone, so no segmentation error enters);
-    ``leaf_area_m2`` their sum.
+    ``leaf_area_m2`` their sum; ``stem_count``, ``leaf_count``.
 
     Args:
-        path: mesh file (OBJ with groups/objects, GLB/glTF with nodes, PLY with a
-            face ``label`` property, ...).
+        path: mesh file, or its bytes (then ``file_type``).
         units_scale: metres per mesh unit (0.001 for millimetres).
-        n_samples_per_m2: surface samples per m^2 for leaf length/width (4e6: ~0.5 mm spacing).
+        n_samples_per_m2: surface samples per m^2 for leaf length/width (4e6: ~0.5 mm
+            spacing); 0 skips length and width (count, areas and heights only).
+        file_type: "obj", "ply", "glb", ... for bytes (None: the path's suffix).
+        legend: colour legend, {(r, g, b): "stem" | "leaf" | "ignore"}.
+        stem_label: the integer label of stem faces (0).
 
     Returns:
         The truth dict, or None when the mesh names no stem or leaf part.
     """
-    parts = _labelled_parts(Path(path))
+    parts = [(p.kind, p.name, p.vertices, p.faces) for p in labels.read_labelled_parts(
+        path if isinstance(path, (bytes, bytearray)) else Path(path), file_type=file_type,
+        legend=legend, stem_label=stem_label)]
     if not parts:
         return None
     import trimesh
@@ -315,6 +249,9 @@ def truth_from_labelled_mesh(path: str | Path, *, units_scale: float = 1.0,
         else:
             mesh = trimesh.Trimesh(v, f, process=False)
             area = float(mesh.area)
+            if n_samples_per_m2 <= 0:
+                leaves.append({"index": len(leaves), "name": name, "area_m2": area})
+                continue
             n = int(np.clip(area * n_samples_per_m2, 500, 200_000))
             samples, _ = trimesh.sample.sample_surface_even(mesh, n, seed=0) if hasattr(
                 trimesh.sample, "sample_surface_even") else trimesh.sample.sample_surface(mesh, n)
@@ -327,14 +264,53 @@ def truth_from_labelled_mesh(path: str | Path, *, units_scale: float = 1.0,
         return None
     z = np.concatenate(z_all)
     base = float(np.concatenate(z_stem).min()) if z_stem else float(z.min())
-    truth: dict[str, Any] = {"height_m": float(z.max()) - base, "source": f"labelled mesh {Path(path).name}"}
+    where = "<bytes>" if isinstance(path, (bytes, bytearray)) else Path(path).name
+    truth: dict[str, Any] = {"height_m": float(z.max()) - base, "source": f"labelled mesh {where}"}
     if stems:
         truth["stems"] = [s for s in stems if "base_xy_m" in s]
         truth["stem_count"] = len(stems)
     if leaves:
         truth["leaves"] = leaves
+        truth["leaf_count"] = len(leaves)
         truth["leaf_area_m2"] = float(sum(lf["area_m2"] for lf in leaves))
     return truth
+
+
+# The truth-file schema's keys (docs/traits.md, "Truth files"); all optional. The core
+# keys carry the traits every scan is measured on; the others are extras.
+TRUTH_CORE_KEYS = ("height_m", "stems", "leaves", "leaf_area_m2")
+TRUTH_EXTRA_KEYS = ("stem_distances_m", "convex_hull_volume_m3", "projected_area_xy_m2")
+TRUTH_KEYS = TRUTH_CORE_KEYS + TRUTH_EXTRA_KEYS
+_TRUTH_INFO_KEYS = {"name", "generator", "seed", "params", "units", "up", "source", "stem_diameter_m",
+                    "mean_stem_distance_m", "mean_nearest_stem_distance_m", "leaf_width_m",
+                    "leaf_length_m", "n_vertices", "n_faces", "stem_count", "leaf_count", "petioles",
+                    "branches"}
+
+
+def truth_notes(truth: Mapping[str, Any]) -> list[str]:
+    """Notes on a truth dict: the schema keys it lacks (their traits are skipped) and the
+    keys it has outside the schema (ignored).
+
+    Returns:
+        Sentences: "truth lacks ..." for core keys (height, stems, leaves, leaf area),
+        "truth has no ..." for extras (stem distances with two stems or more, hull
+        volume, projected area), "truth keys not in the schema ...". Empty when all is there.
+    """
+    def absent(key: str) -> bool:
+        return truth.get(key) in (None, [], ())
+
+    notes = []
+    core = [key for key in TRUTH_CORE_KEYS if absent(key)]
+    if core:
+        notes.append(f"truth lacks {', '.join(core)}: those traits are not compared")
+    n_stems = len(truth.get("stems") or ())
+    extra = [key for key in TRUTH_EXTRA_KEYS if absent(key) and (key != "stem_distances_m" or n_stems >= 2)]
+    if extra:
+        notes.append(f"truth has no {', '.join(extra)}: not compared")
+    unknown = sorted(set(truth) - set(TRUTH_KEYS) - _TRUTH_INFO_KEYS)
+    if unknown:
+        notes.append(f"truth keys not in the schema, ignored: {', '.join(unknown)}")
+    return notes
 
 
 def _labelled_truth(plant: PlantMesh) -> dict[str, Any] | None:
@@ -448,6 +424,9 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             truth = labelled if found is None else json.loads(found.read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
             raise ValueError(f"truth_path: {found} is not valid JSON: {exc}") from exc
+        for note in truth_notes(truth) if isinstance(truth, Mapping) else ():
+            logger.log(logging.INFO if note.startswith("truth has no") else logging.WARNING,
+                       "%s: %s", found or plant.source, note)
         try:
             reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
             estimate = (traits.extract_traits(pts, settings=options.trait_settings)

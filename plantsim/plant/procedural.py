@@ -1,4 +1,5 @@
-"""Procedural maize and wheat plants whose traits are exact by construction.
+"""Procedural plants (maize, wheat, rosette, broad-leaved dicot) whose traits are exact
+by construction.
 
 The generator builds a plant from parameters and a seed, in the plant frame: Z up,
 the base of the (main) stem at the origin, the lowest point of the mesh at z = 0.
@@ -18,6 +19,11 @@ Definitions used by the traits (``ProceduralPlant.traits``):
   of the generating curve up to rounding.
 - Leaf width: the largest chord between the two margin vertices of one cross-section.
 - Leaf area: the summed area of the leaf's triangles (one side of the open sheet).
+- Leaf inclination: the angle above the horizontal of the chord from the leaf's first
+  midrib vertex (collar) to its tip, degrees (positive: tip above the collar), the
+  definition ``plantsim.evaluation.traits`` uses on clouds.
+- Dicot leaves: every lamina is a leaf in ``leaves`` (a trifoliate leaf adds three);
+  petioles and branches are neither stem nor leaf (``PART_PETIOLE``, ``PART_BRANCH``).
 
 Leaves are single open sheets (no thickness); stems and ears are closed tubes.
 """
@@ -38,6 +44,11 @@ _LOG = logging.getLogger(__name__)
 PART_STEM = 0
 PART_LEAF = 1
 PART_EAR = 2
+PART_PETIOLE = 3
+PART_BRANCH = 4
+# Names of the part labels, for exporters and labelled-mesh readers.
+PART_NAMES = {PART_STEM: "stem", PART_LEAF: "leaf", PART_EAR: "ear", PART_PETIOLE: "petiole",
+              PART_BRANCH: "branch"}
 
 # A leaf that would reach below this height has its droop reduced (leaves rest above the pot).
 _GROUND_CLEARANCE = 0.002  # m
@@ -157,7 +168,7 @@ class MaizeParams:
     jittered by ``size_jitter``.
 
     Attributes:
-        n_leaves: Number of leaves, 1-20.
+        n_leaves: Number of leaves, 1-30.
         stem_length: Arc length of the stem axis, base to top cap, m.
         stem_diameter: Circumscribed stem diameter at the base, m.
         stem_top_diameter: Circumscribed stem diameter at the top, m (linear taper).
@@ -214,7 +225,7 @@ class MaizeParams:
     highest_leaf_fraction: float = 0.90
 
     def __post_init__(self) -> None:
-        _set(self, "n_leaves", _as_int("n_leaves", self.n_leaves, 1, 20))
+        _set(self, "n_leaves", _as_int("n_leaves", self.n_leaves, 1, 30))
         _set(self, "stem_lean_deg", _as_float("stem_lean_deg", self.stem_lean_deg, 0.0, 30.0, "deg"))
         _validate_common(self)
 
@@ -314,14 +325,16 @@ class ProceduralPlant:
     """A generated plant: mesh, part labels and exact traits.
 
     Attributes:
-        name: "maize", "wheat" or "rosette".
+        name: "maize", "wheat", "rosette" or "dicot".
         vertices_m: (n, 3) float64, metres, plant frame (Z up, main stem base at the
             origin, lowest point at z = 0). Read-only.
         faces: (m, 3) int64 vertex indices; stems and ears are wound outwards, leaves
             towards their upper (adaxial) side. Read-only.
-        face_part: (m,) int64, PART_STEM (0), PART_LEAF (1) or PART_EAR (2). Read-only.
+        face_part: (m,) int64, PART_STEM (0), PART_LEAF (1), PART_EAR (2), PART_PETIOLE (3)
+            or PART_BRANCH (4). Read-only.
         face_organ: (m,) int64, the stem index for stem and ear faces, the leaf index for
-            leaf faces. Read-only.
+            leaf faces, the petiole's (petiolate leaf's) index for petiole faces, the
+            branch index for branch faces. Read-only.
         traits: Exact traits, in the JSON schema written by ``traits_to_json``.
         params: The parameters the plant was made from.
     """
@@ -332,7 +345,7 @@ class ProceduralPlant:
     face_part: np.ndarray
     face_organ: np.ndarray
     traits: dict
-    params: MaizeParams | WheatParams | RosetteParams
+    params: MaizeParams | WheatParams | RosetteParams | DicotParams
 
 
 # ------------------------------------------------------------------------ geometry core
@@ -614,6 +627,7 @@ def _leaf_traits(index: int, stem: int, vertices: np.ndarray, faces: np.ndarray,
     n_rows, n_cols = shape.segments, shape.width_segments + 1
     grid = vertices[:-1].reshape(n_rows, n_cols, 3)
     midrib = np.concatenate([grid[:, n_cols // 2], vertices[-1:]])
+    chord = midrib[-1] - midrib[0]
     return {
         "index": index,
         "stem": stem,
@@ -621,10 +635,11 @@ def _leaf_traits(index: int, stem: int, vertices: np.ndarray, faces: np.ndarray,
         "length_m": float(np.linalg.norm(np.diff(midrib, axis=0), axis=1).sum()),
         "width_m": float(np.linalg.norm(grid[:, 0] - grid[:, -1], axis=1).max()),
         "area_m2": float(_triangle_areas(vertices, faces).sum()),
+        "inclination_deg": float(np.degrees(np.arctan2(chord[2], np.hypot(chord[0], chord[1])))),
     }
 
 
-def _finish(name: str, seed: int, params: MaizeParams | WheatParams, builder: _Builder,
+def _finish(name: str, seed: int, params: Any, builder: _Builder,
             stems: list[dict], leaves: list[dict]) -> ProceduralPlant:
     vertices, faces, part, organ = builder.arrays()
     bases = np.array([s["base_xy_m"] for s in stems])
@@ -945,6 +960,307 @@ def make_rosette(*, seed: int = 0, **params: Any) -> ProceduralPlant:
     return _finish("rosette", seed, p, builder, stems, leaves)
 
 
+
+# ----------------------------------------------------------------------------- dicot
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class DicotParams:
+    """A broad-leaved dicot (bean, soybean, pepper): an upright stem with petiolate leaves.
+
+    The main stem carries its leaves one per node, spiralled by ``phyllotaxy_deg``; each
+    leaf is a petiole ending in one lamina (``leaflets=1``, a simple leaf) or, past a
+    short rachis, a terminal leaflet with two lateral leaflets at the petiole's end
+    (``leaflets=3``, trifoliate as in bean and soybean). Optional branches rise from the
+    axils of the lowest nodes and carry ``leaves_per_branch`` leaves each. Leaf sizes
+    follow a profile over the node's rank (the middle leaves largest, the youngest at
+    the top smallest). Every lamina is a leaf of the traits (``leaves``).
+
+    Touching leaves: short internodes (``stem_length`` small for ``n_leaves``), large
+    laminae (``leaflet_length``/``leaflet_width``) and a small ``phyllotaxy_deg`` stack
+    the laminae over each other, so their surfaces touch or overlap in projection.
+
+    Attributes:
+        n_leaves: Petiolate leaves on the whole plant, 1-30 (laminae: ``leaflets`` each).
+        leaflets: 1 (simple leaves) or 3 (trifoliate).
+        stem_length: Arc length of the main stem, base to apex, m.
+        stem_diameter: Circumscribed stem diameter at the base, m.
+        stem_top_diameter: Circumscribed stem diameter at the apex, m (linear taper).
+        stem_lean_deg: Largest lean of the stem top from vertical (random fraction of it).
+        stem_sides: Sides of the stem polygon, 24-256.
+        stem_rings: Rings of vertices along the stem.
+        lowest_node_fraction: Height of the lowest node, fraction of stem_length.
+        highest_node_fraction: Height of the highest node, fraction of stem_length.
+        phyllotaxy_deg: Azimuth between successive nodes (137.5 = golden angle).
+        phyllotaxy_jitter_deg: Uniform jitter of each node's azimuth.
+        petiole_length: Petiole length of the largest leaf, m (rachis not included).
+        petiole_diameter: Petiole diameter, m.
+        petiole_angle_deg: Petiole angle from vertical, lowest leaf (upper ones 30 % more erect).
+        rachis_length: Of a trifoliate leaf: petiole extension to the terminal leaflet, m.
+        leaflet_length: Lamina length of the largest (terminal) leaflet, m.
+        leaflet_width: Lamina width of the largest (terminal) leaflet, m.
+        lateral_leaflet_scale: Lateral leaflet size over the terminal one's.
+        lateral_leaflet_angle_deg: Azimuth of the lateral leaflets from the petiole's.
+        leaf_angle_deg: Lamina midrib angle from vertical at its base (90 horizontal).
+        leaf_droop_deg: Added to leaf_angle_deg towards the lamina tip.
+        leaf_angle_jitter_deg: Uniform jitter of leaf_angle_deg.
+        leaf_fold: Rise of the lamina margins over the midrib, fraction of the half-width.
+        leaf_twist_deg: Largest twist of a lamina about its midrib.
+        n_branches: Branches from the axils of the lowest nodes, 0-4.
+        branch_angle_deg: Branch angle from vertical.
+        branch_length_fraction: Branch length over stem_length.
+        branch_diameter: Branch diameter, m.
+        leaves_per_branch: Leaves on each branch (counted in n_leaves).
+        size_jitter: Relative uniform jitter of petiole and lamina sizes and droops.
+        leaf_segments: Segments along each lamina.
+        leaf_width_segments: Segments across each lamina; even (the midrib is a column).
+        petiole_sides: Sides of the petiole and branch polygons.
+    """
+
+    n_leaves: int = 8
+    leaflets: int = 3
+    stem_length: float = 0.30
+    stem_diameter: float = 0.007
+    stem_top_diameter: float = 0.004
+    stem_lean_deg: float = 3.0
+    stem_sides: int = 24
+    stem_rings: int = 30
+    lowest_node_fraction: float = 0.3
+    highest_node_fraction: float = 0.97
+    phyllotaxy_deg: float = GOLDEN_ANGLE_DEG
+    phyllotaxy_jitter_deg: float = 8.0
+    petiole_length: float = 0.07
+    petiole_diameter: float = 0.0025
+    petiole_angle_deg: float = 50.0
+    rachis_length: float = 0.02
+    leaflet_length: float = 0.085
+    leaflet_width: float = 0.055
+    lateral_leaflet_scale: float = 0.85
+    lateral_leaflet_angle_deg: float = 65.0
+    leaf_angle_deg: float = 80.0
+    leaf_droop_deg: float = 20.0
+    leaf_angle_jitter_deg: float = 8.0
+    leaf_fold: float = 0.08
+    leaf_twist_deg: float = 10.0
+    n_branches: int = 0
+    branch_angle_deg: float = 35.0
+    branch_length_fraction: float = 0.45
+    branch_diameter: float = 0.004
+    leaves_per_branch: int = 2
+    size_jitter: float = 0.08
+    leaf_segments: int = 16
+    leaf_width_segments: int = 8
+    petiole_sides: int = 8
+
+    def __post_init__(self) -> None:
+        _set(self, "n_leaves", _as_int("n_leaves", self.n_leaves, 1, 30))
+        _set(self, "leaflets", _as_int("leaflets", self.leaflets, 1, 3))
+        if self.leaflets == 2:
+            raise ValueError("leaflets must be 1 (simple leaves) or 3 (trifoliate), got 2")
+        _set(self, "stem_length", _as_float("stem_length", self.stem_length, 0.05, 3.0, "m"))
+        for name in ("stem_diameter", "stem_top_diameter", "petiole_diameter", "branch_diameter"):
+            _set(self, name, _as_float(name, getattr(self, name), 0.0, 0.1, "m", lo_open=True))
+        if self.stem_top_diameter > self.stem_diameter:
+            raise ValueError(f"stem_top_diameter must not exceed stem_diameter ({self.stem_diameter} m), "
+                             f"got {self.stem_top_diameter}")
+        if self.stem_diameter * 5 > self.stem_length:
+            raise ValueError(f"stem_diameter must be at most stem_length / 5 ({self.stem_length / 5} m), "
+                             f"got {self.stem_diameter}")
+        _set(self, "stem_lean_deg", _as_float("stem_lean_deg", self.stem_lean_deg, 0.0, 30.0, "deg"))
+        _set(self, "stem_sides", _as_int("stem_sides", self.stem_sides, 24, 256))
+        _set(self, "stem_rings", _as_int("stem_rings", self.stem_rings, 2, 1000))
+        for name in ("lowest_node_fraction", "highest_node_fraction"):
+            _set(self, name, _as_float(name, getattr(self, name), 0.0, 1.0, "", lo_open=True))
+        if self.highest_node_fraction < self.lowest_node_fraction:
+            raise ValueError(f"highest_node_fraction must be at least lowest_node_fraction "
+                             f"({self.lowest_node_fraction}), got {self.highest_node_fraction}")
+        _set(self, "phyllotaxy_deg", _as_float("phyllotaxy_deg", self.phyllotaxy_deg, 0.0, 360.0, "deg"))
+        _set(self, "phyllotaxy_jitter_deg",
+             _as_float("phyllotaxy_jitter_deg", self.phyllotaxy_jitter_deg, 0.0, 90.0, "deg"))
+        for name, hi in (("petiole_length", 0.5), ("leaflet_length", 0.5), ("leaflet_width", 0.5)):
+            _set(self, name, _as_float(name, getattr(self, name), 0.0, hi, "m", lo_open=True))
+        _set(self, "rachis_length", _as_float("rachis_length", self.rachis_length, 0.0, 0.2, "m"))
+        if self.leaflet_width >= self.leaflet_length:
+            raise ValueError(f"leaflet_width must be less than leaflet_length ({self.leaflet_length} m), "
+                             f"got {self.leaflet_width}")
+        if self.petiole_diameter * 4 > self.petiole_length:
+            raise ValueError(f"petiole_diameter must be at most petiole_length / 4 "
+                             f"({self.petiole_length / 4} m), got {self.petiole_diameter}")
+        _set(self, "lateral_leaflet_scale",
+             _as_float("lateral_leaflet_scale", self.lateral_leaflet_scale, 0.2, 1.5, ""))
+        _set(self, "lateral_leaflet_angle_deg",
+             _as_float("lateral_leaflet_angle_deg", self.lateral_leaflet_angle_deg, 10.0, 120.0, "deg"))
+        _set(self, "petiole_angle_deg", _as_float("petiole_angle_deg", self.petiole_angle_deg, 0.0, 85.0, "deg"))
+        _set(self, "leaf_angle_deg", _as_float("leaf_angle_deg", self.leaf_angle_deg, 10.0, 110.0, "deg"))
+        _set(self, "leaf_droop_deg", _as_float("leaf_droop_deg", self.leaf_droop_deg, 0.0, 60.0, "deg"))
+        _set(self, "leaf_angle_jitter_deg",
+             _as_float("leaf_angle_jitter_deg", self.leaf_angle_jitter_deg, 0.0, 30.0, "deg"))
+        _set(self, "leaf_fold", _as_float("leaf_fold", self.leaf_fold, 0.0, 1.0, ""))
+        _set(self, "leaf_twist_deg", _as_float("leaf_twist_deg", self.leaf_twist_deg, 0.0, 90.0, "deg"))
+        _set(self, "n_branches", _as_int("n_branches", self.n_branches, 0, 4))
+        _set(self, "branch_angle_deg", _as_float("branch_angle_deg", self.branch_angle_deg, 5.0, 80.0, "deg"))
+        _set(self, "branch_length_fraction",
+             _as_float("branch_length_fraction", self.branch_length_fraction, 0.05, 1.0, ""))
+        _set(self, "leaves_per_branch", _as_int("leaves_per_branch", self.leaves_per_branch, 1, 10))
+        _set(self, "size_jitter", _as_float("size_jitter", self.size_jitter, 0.0, 0.3, ""))
+        _set(self, "leaf_segments", _as_int("leaf_segments", self.leaf_segments, 4, 400))
+        _set(self, "leaf_width_segments", _as_int("leaf_width_segments", self.leaf_width_segments, 2, 64))
+        if self.leaf_width_segments % 2:
+            raise ValueError(f"leaf_width_segments must be even (the midrib is the middle column), "
+                             f"got {self.leaf_width_segments}")
+        _set(self, "petiole_sides", _as_int("petiole_sides", self.petiole_sides, 6, 64))
+        on_stem = self.n_leaves - self.n_branches * self.leaves_per_branch
+        if on_stem < max(self.n_branches, 1):
+            raise ValueError(
+                f"n_leaves must be at least n_branches * (leaves_per_branch + 1) = "
+                f"{self.n_branches * (self.leaves_per_branch + 1)} (each branch rises from a leaf's "
+                f"axil on the main stem), got {self.n_leaves}; lower n_branches or leaves_per_branch")
+
+
+def _rod(start: np.ndarray, end: np.ndarray, radius: float, sides: int
+         ) -> tuple[np.ndarray, np.ndarray]:
+    """A straight closed tube (petiole, branch) from ``start`` to ``end``, m."""
+    axis = end - start
+    t = axis / np.linalg.norm(axis)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(t[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    b = np.cross(helper, t)
+    b /= np.linalg.norm(b)
+    n = np.cross(t, b)
+    alpha = 2.0 * np.pi * np.arange(sides) / sides
+    ring = radius * (np.cos(alpha)[:, None] * b + np.sin(alpha)[:, None] * n)
+    rings = np.stack([start + ring, end + ring])
+    return _tube(rings, start, end)
+
+
+def _polar(theta: float, azimuth: float) -> np.ndarray:
+    """Unit vector at ``theta`` rad from vertical towards ``azimuth`` rad from +X."""
+    return np.array([math.sin(theta) * math.cos(azimuth), math.sin(theta) * math.sin(azimuth),
+                     math.cos(theta)])
+
+
+def make_dicot(*, seed: int = 0, **params: Any) -> ProceduralPlant:
+    """Generates a broad-leaved dicot: an upright stem, petioles and flat ovate laminae.
+
+    Node k of the main stem (0 lowest) sits at a height between
+    ``lowest_node_fraction`` and ``highest_node_fraction`` of the stem, its leaf at
+    azimuth ``k * phyllotaxy_deg`` (with jitter). Branches rise from the axils of the
+    lowest ``n_branches`` nodes, leaning ``branch_angle_deg`` towards their node's leaf
+    (offset by a quarter turn so the two do not coincide) and carry their leaves
+    along their upper half. Laminae are ovate (widest at 35 % of their length, tapering
+    to an acute tip) and nearly flat.
+
+    Args:
+        seed: Seed of the ``numpy.random.default_rng`` that draws the jitter.
+        **params: Fields of ``DicotParams`` to override.
+
+    Returns:
+        The plant, with exact traits (see the module docstring), plus ``petioles``
+        (per leaf: ``index``, ``axis`` ("stem" or "branch"), ``axis_index``,
+        ``length_m`` including the rachis, ``leaves``: its laminae's indices) and
+        ``branches`` (``index``, ``node``, ``base_xyz_m``, ``length_m``, ``diameter_m``).
+
+    Raises:
+        ValueError: An unknown or invalid parameter, or a negative seed.
+    """
+    seed = _check_seed(seed)
+    p: DicotParams = _make_params(DicotParams, params)
+    rng = np.random.default_rng(seed)
+    lean = math.radians(p.stem_lean_deg) * rng.uniform()
+    lean_azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    first_azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    n = p.n_leaves
+    u = rng.uniform(-1.0, 1.0, size=(6, n))
+    blade_u = rng.uniform(-1.0, 1.0, size=(5, n, 3))
+    branch_u = rng.uniform(-1.0, 1.0, size=(2, max(p.n_branches, 1)))
+
+    builder = _Builder()
+    r_base, r_top = 0.5 * p.stem_diameter, 0.5 * p.stem_top_diameter
+    stem_vertices, stem_faces, top = _stem(np.zeros(2), p.stem_length, lean, lean_azimuth,
+                                           r_base, r_top, p.stem_sides, p.stem_rings)
+    builder.add(stem_vertices, stem_faces, PART_STEM, 0)
+    stems = [{"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 2.0 * r_base,
+              "height_m": float(top[2]), "top_xyz_m": [float(c) for c in top]}]
+
+    # Where each leaf attaches: (axis point, axis radius, azimuth, rank q, axis kind, axis index).
+    n_stem_leaves = n - p.n_branches * p.leaves_per_branch
+    attachments = []
+    for k in range(n_stem_leaves):
+        q = k / (n_stem_leaves - 1) if n_stem_leaves > 1 else 0.5
+        fraction = p.lowest_node_fraction + (p.highest_node_fraction - p.lowest_node_fraction) * q
+        axis, _ = _arc_axis(np.array([p.stem_length * fraction]), p.stem_length, lean, lean_azimuth)
+        azimuth = (first_azimuth + k * math.radians(p.phyllotaxy_deg)
+                   + math.radians(p.phyllotaxy_jitter_deg) * u[0, k])
+        attachments.append((axis[0], r_base + (r_top - r_base) * fraction, azimuth, q, "stem", 0))
+    branches = []
+    for i in range(p.n_branches):
+        node_point, node_radius, node_azimuth, q_node = attachments[i][:4]
+        azimuth = node_azimuth + 0.5 * np.pi * (1.0 if i % 2 == 0 else -1.0) + 0.2 * branch_u[0, i]
+        direction = _polar(math.radians(p.branch_angle_deg) * (1.0 + 0.1 * branch_u[1, i]), azimuth)
+        length = p.branch_length_fraction * p.stem_length
+        radius = 0.5 * min(p.branch_diameter, 2.0 * node_radius)
+        start = node_point
+        end = start + length * direction
+        vertices, faces = _rod(start, end, radius, p.petiole_sides)
+        builder.add(vertices, faces, PART_BRANCH, i)
+        branches.append({"index": i, "node": i, "base_xyz_m": [float(c) for c in start],
+                         "length_m": length, "diameter_m": 2.0 * radius})
+        for j in range(p.leaves_per_branch):
+            f = 0.5 + 0.5 * (j + 1) / p.leaves_per_branch
+            leaf_azimuth = (azimuth + (j + 1) * math.radians(p.phyllotaxy_deg)
+                            + math.radians(p.phyllotaxy_jitter_deg) * u[0, len(attachments)])
+            attachments.append((start + f * length * direction, radius, leaf_azimuth,
+                                min(q_node + 0.3 + 0.2 * j, 1.0), "branch", i))
+
+    leaves, petioles = [], []
+    for k, (point, axis_radius, azimuth, q, axis_kind, axis_index) in enumerate(attachments):
+        # The middle leaves are the largest, the young top ones the smallest.
+        size = (0.55 + 0.45 * math.exp(-((q - 0.45) / 0.4) ** 2)) * (1.0 + p.size_jitter * u[1, k])
+        petiole_theta = math.radians(p.petiole_angle_deg) * (1.0 - 0.3 * q) * (1.0 + 0.1 * u[2, k])
+        direction = _polar(petiole_theta, azimuth)
+        petiole_length = p.petiole_length * size
+        total = petiole_length + (p.rachis_length * size if p.leaflets == 3 else 0.0)
+        start = point + _COLLAR_INSET * axis_radius * np.array([math.cos(azimuth), math.sin(azimuth), 0.0])
+        end = start + total * direction
+        vertices, faces = _rod(start, end, 0.5 * p.petiole_diameter, p.petiole_sides)
+        builder.add(vertices, faces, PART_PETIOLE, k)
+        blades = [("terminal", end, azimuth, 1.0)]
+        if p.leaflets == 3:
+            fork = start + petiole_length * direction
+            spread = math.radians(p.lateral_leaflet_angle_deg)
+            blades += [("lateral", fork, azimuth + spread, p.lateral_leaflet_scale),
+                       ("lateral", fork, azimuth - spread, p.lateral_leaflet_scale)]
+        indices = []
+        for b, (role, base, blade_azimuth, scale) in enumerate(blades):
+            index = len(leaves)
+            jitter = blade_u[:, k, b]
+            # Each lamina starts a petiole radius out along its own azimuth (a short
+            # petiolule), so the three leaflets of a trifoliate leaf share no point.
+            base = base + 0.5 * p.petiole_diameter * np.array(
+                [math.cos(blade_azimuth), math.sin(blade_azimuth), 0.0])
+            shape = _LeafShape(
+                base=base, azimuth=blade_azimuth + 0.1 * jitter[0],
+                length=p.leaflet_length * size * scale * (1.0 + 0.5 * p.size_jitter * jitter[1]),
+                width=p.leaflet_width * size * scale * (1.0 + 0.5 * p.size_jitter * jitter[2]),
+                theta0=math.radians(p.leaf_angle_deg + p.leaf_angle_jitter_deg * jitter[3]),
+                droop=math.radians(p.leaf_droop_deg) * (1.0 + p.size_jitter * jitter[4]),
+                curl=0.0, twist=math.radians(p.leaf_twist_deg) * jitter[0],
+                fold=p.leaf_fold, wave_amplitude=0.0, wave_length=1.0, wave_phase=(0.0, 0.0),
+                collar=0.04, peak=0.35, tip_power=1.4,
+                segments=p.leaf_segments, width_segments=p.leaf_width_segments)
+            vertices, faces = _grounded_leaf(shape, index)
+            builder.add(vertices, faces, PART_LEAF, index)
+            traits = _leaf_traits(index, 0, vertices, faces, shape)
+            traits.update({"petiole": k, "leaflet": role})
+            leaves.append(traits)
+            indices.append(index)
+        petioles.append({"index": k, "axis": axis_kind, "axis_index": axis_index,
+                         "length_m": float(total), "diameter_m": p.petiole_diameter, "leaves": indices})
+    plant = _finish("dicot", seed, p, builder, stems, leaves)
+    plant.traits["petioles"] = petioles
+    plant.traits["branches"] = branches
+    return plant
+
+
 def _round_floats(value: Any) -> Any:
     if isinstance(value, float):
         return float(f"{value:.{_JSON_DIGITS}g}")
@@ -980,3 +1296,26 @@ def to_stl_bytes(plant: ProceduralPlant) -> bytes:
     records["normal"] = normals
     records["vertices"] = tri
     return header + struct.pack("<I", len(tri)) + records.tobytes()
+
+
+def to_labelled_obj_bytes(plant: ProceduralPlant) -> bytes:
+    """The plant's mesh as Wavefront OBJ with one object per organ (metres, plant frame).
+
+    Objects are named ``<part>_<organ>`` (``stem_0``, ``leaf_3``, ``petiole_2``,
+    ``ear_1``, ``branch_0``), so :func:`plantsim.plant.labels.read_labelled_parts` and
+    ``plantsim scan MESH --evaluate`` read stems and leaves from the file itself.
+    Coordinates are written with 17 significant digits (float64 round trip).
+    """
+    lines = [f"# plantsim procedural {plant.name} seed={plant.traits['seed']} units=m up=z"]
+    lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in plant.vertices_m.tolist()]
+    keys = np.stack([plant.face_part, plant.face_organ], axis=1)
+    order = np.lexsort((plant.face_organ, plant.face_part))
+    last = None
+    for i in order:
+        key = (int(keys[i, 0]), int(keys[i, 1]))
+        if key != last:
+            lines.append(f"o {PART_NAMES[key[0]]}_{key[1]}")
+            last = key
+        a, b, c = plant.faces[i] + 1
+        lines.append(f"f {a} {b} {c}")
+    return ("\n".join(lines) + "\n").encode("ascii")
