@@ -48,7 +48,10 @@ _LAZY_MODULES = {
     "plantsim.cloud.reconstruct": "PointCloud reconstruct",
     "plantsim.plant.mesh": "PlantMesh load_plant plant_from_arrays",
     "plantsim.plant.procedural": ("PART_EAR PART_LEAF PART_STEM MaizeParams ProceduralPlant WheatParams make_maize "
-                                  "make_wheat RosetteParams make_rosette"),
+                                  "make_wheat RosetteParams make_rosette DicotParams make_dicot PART_PETIOLE PART_BRANCH PART_NAMES "
+                                  "to_labelled_obj_bytes"),
+    "plantsim.plant.labels": ("LabelledPart read_labelled_parts parts_from_face_labels parts_from_colours "
+                              "PART_COLOURS_RGB"),
     "plantsim.resources": "bundled_plant_path",
     "plantsim.rig.geometry": "RigGeometry",
     "plantsim.rig.scene": "HitClass Scene build_scene",
@@ -69,7 +72,7 @@ _LAZY_MODULES = {
     "plantsim.turntable.table": "SimulatedTurntable Turntable",
     "plantsim.hardware.dynamixel.turntable": "ServoTurntable ServoStatus",
     "plantsim.cloud.bag": "read_raw write_raw",
-    "plantsim.evaluation.evaluate": "Evaluation EvaluationOptions evaluate_scan evaluation_threads truth_from_labelled_mesh",
+    "plantsim.evaluation.evaluate": "Evaluation EvaluationOptions evaluate_scan evaluation_threads truth_from_labelled_mesh truth_notes",
     "plantsim.evaluation.metrics": "cloud_mesh_metrics",
     "plantsim.evaluation.traits": "extract_traits traits_from_mesh",
     "plantsim.evaluation.study": "Sweep run_study pareto_front dask_executor",
@@ -111,9 +114,10 @@ __all__ = [
     "SensorFit", "FlatTarget", "simulate_flat_target",
     # procedural plants
     "make_maize", "make_wheat", "make_rosette", "MaizeParams", "WheatParams", "RosetteParams", "ProceduralPlant", "PART_STEM", "PART_LEAF",
-    "PART_EAR",
+    "PART_EAR", "make_dicot", "DicotParams", "PART_PETIOLE", "PART_BRANCH", "PART_NAMES", "to_labelled_obj_bytes",
+    "LabelledPart", "read_labelled_parts", "parts_from_face_labels", "parts_from_colours", "PART_COLOURS_RGB",
     # evaluation
-    "Evaluation", "EvaluationOptions", "evaluate_scan", "evaluation_threads", "truth_from_labelled_mesh", "cloud_mesh_metrics", "extract_traits",
+    "Evaluation", "EvaluationOptions", "evaluate_scan", "evaluation_threads", "truth_from_labelled_mesh", "truth_notes", "cloud_mesh_metrics", "extract_traits",
     "traits_from_mesh", "Sweep", "run_study", "pareto_front", "dask_executor", "SettingTypeError",
     "MissingExtraError",
     # transforms
