@@ -94,3 +94,23 @@ def test_a_kinematic_scan_cast_with_embree_never_loads_mujoco(tmp_path):
         sidecar = json.loads((tmp_path / "x.las.json").read_text())
         assert "mujoco" in sidecar["versions"]["not_loaded"]
         assert "MuJoCo not loaded" in sidecar["simulated"]["lidar"]["ray_caster_detail"]
+
+
+@pytest.mark.parametrize("argv, user, expected", [
+    (["plantsim", "scan", "plant.stl"], None, "1"),
+    (["plantsim", "-v", "scan"], None, "1"),
+    (["plantsim", "study", "sweep.toml"], None, None),
+    (["plantsim", "scan"], "4", "4"),  # the user's own choice stands
+])
+def test_a_scan_process_runs_blas_on_one_thread(argv, user, expected):
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if user is not None:
+        env["OPENBLAS_NUM_THREADS"] = user
+    code = (f"import sys; sys.argv = {argv!r}\n"
+            "import plantsim.cli, os\n"
+            "print(os.environ.get('OPENBLAS_NUM_THREADS'))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == str(expected)
