@@ -206,3 +206,17 @@ def test_too_few_lines_are_refused():
     raw = scan_of_target(TRUTH, step_deg=20.0).raw
     with pytest.raises(ValueError, match="scan a whole turn in steps of 15 degrees or less"):
         calibrate(raw)
+
+
+def test_the_stated_uncertainty_adds_the_sensors_systematic_share(ideal_raw):
+    from plantsim.cloud.calibration import MODEL_STD
+
+    told = calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000)  # range offset told: not fitted
+    bare = calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000, model_std=None)
+    assert bare.std == bare.std_fit == told.std_fit
+    for name in PARAMETERS:
+        assert told.std[name] == pytest.approx(np.hypot(told.std_fit[name], MODEL_STD.get(name, 0.0)), rel=1e-12)
+    assert told.std["range_offset_m"] == told.std_fit["range_offset_m"] == 0.0  # told, so not fitted
+    assert told.std["encoder_offset_deg"] >= MODEL_STD["encoder_offset_deg"]
+    with pytest.raises(ValueError, match="model_std names no calibration parameter: \\['yaw'\\]"):
+        calibrate(ideal_raw, max_points=6000, model_std={"yaw": 0.1})
