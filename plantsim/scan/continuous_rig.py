@@ -385,6 +385,37 @@ class ContinuousServo:
         d.torque_on()
 
 
+def check_lidar_clock_rate(source) -> None:
+    """Refuses a LiDAR whose clock does not run at the host's rate (before anything moves).
+
+    A continuous scan puts every beam on the host clock through the sensor's
+    timestamps (the TM offset) and the servo's readings through its Realtime Tick;
+    both assume device clocks that run at the host's rate (within ppm). An emulated
+    pair started with ``--speed-factor N`` runs its clocks N times faster than a host
+    on the wall clock: its beams would be placed at the wrong angles, and its LiDAR
+    must cast N x 10 scans per wall second, more than a machine can, so the stream
+    falls behind. The rate bounds of the last clock sync
+    (:attr:`~plantsim.hardware.urg.clock.ClockOffset.rate_low`, ``rate_high``) decide.
+
+    Raises:
+        HardwareError: the bounds exclude the host's rate (by more than
+            :data:`~plantsim.hardware.urg.clock.RATE_TOLERANCE`).
+    """
+    from plantsim.hardware.urg.clock import RATE_TOLERANCE
+
+    lidar = getattr(source, "lidar", None)
+    offset = getattr(lidar, "clock_offset", None)
+    if offset is None or offset.runs_at_host_rate():
+        return
+    rate = f"{offset.rate_low:.3g} to {offset.rate_high:.3g}" if math.isfinite(offset.rate_high) else \
+        f"at least {offset.rate_low:.3g}"
+    raise HardwareError(
+        f"the LiDAR on {getattr(lidar, 'port', 'its port')} counts {rate} s of its time per second of the host's "
+        f"(a sensor runs at 1 within {RATE_TOLERANCE:.0%}): a continuous scan times every beam on the host's clock, "
+        "so it needs the devices in real time. Is it an emulator started with --speed-factor? Restart it with "
+        "--speed-factor 1 for continuous scans (step scans work at any speed factor)")
+
+
 def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, sweep_deg: float,
                            journal_path: str | Path, identity: dict, angle_mode: str, T_base_lidar: np.ndarray,
                            encoder_offset_rad: float = 0.0, resume: bool = False,
@@ -422,6 +453,7 @@ def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, swe
     """
     if not (math.isfinite(sweep_deg) and 0 < sweep_deg):
         raise ValueError(f"sweep_deg must be finite and > 0, got {sweep_deg!r}")
+    check_lidar_clock_rate(source)
     velocity_units = profile_velocity_units(rpm)
     omega = servo_rpm(rpm) * 2 * math.pi / 60.0
     per_line_rad = omega * grid.scan_period_s
