@@ -63,6 +63,10 @@ class _LostStatus(Exception):
     """A status packet timed out or was corrupt (COMM_RX_TIMEOUT / COMM_RX_CORRUPT)."""
 
 
+class _GarbledInstruction(Exception):
+    """The servo answered with a CRC error: the instruction was garbled on the way and not run."""
+
+
 def _sdk():
     try:
         import dynamixel_sdk
@@ -298,6 +302,11 @@ class DynamixelTurntable:
                 _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
                 # Out of step until shown otherwise: the next attempt resynchronises first.
                 self._mark_unsynced()
+            except _GarbledInstruction as garbled:
+                # The status came (the bus is in step) and says the instruction was not run.
+                if attempt == attempts:
+                    raise ServoCommunicationError(str(garbled)) from None
+                _log.warning("%s (attempt %d of %d); retrying", garbled, attempt, attempts)
         raise AssertionError("unreachable")
 
     def _mark_unsynced(self) -> None:
@@ -437,6 +446,11 @@ class DynamixelTurntable:
             # was refused because of it (torque on during a shutdown).
             self._raise_alarm(what)
         code = error & 0x7F
+        if code == protocol.ErrorCode.CRC:
+            raise _GarbledInstruction(
+                f"{what} on {self.port_name} ID {self.dxl_id}: the servo received a garbled instruction "
+                f"({protocol.describe_error(code)}) and did not run it. Noise on the bus: check the cable, "
+                "its length and the termination")
         if code:
             raise ServoCommunicationError(
                 f"{what} on {self.port_name} ID {self.dxl_id} refused: {self._packet.getRxPacketError(code)} "
