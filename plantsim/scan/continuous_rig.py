@@ -514,7 +514,7 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                 # Back by a lead-in (to come up to speed) and ten line periods more (1 s on the URG; at
                 # least another lead-in): a reading has that long to show the table at speed before
                 # `begin`, so the first line past it is kept even when a busy host reads the servo late
-                # (with one lead-in, readings late by 0.7 s left a gap of 7 lines there).
+                # (with one lead-in, a busy host's late readings left a gap of 7 lines there).
                 back_rad = lead_in_rad + max(lead_in_rad, 10 * per_line_rad)
                 present = servo.move_and_wait(last - frame_rad - back_rad, move_timeout_s)
                 first_line_rad = journal.lines[0].reported_angle_rad
