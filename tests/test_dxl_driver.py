@@ -160,6 +160,31 @@ def test_retries_hide_one_lost_status_and_log_it(emulator, turntable, caplog):
     assert "no status packet" in caplog.text and "attempt 1 of 3" in caplog.text
 
 
+def test_a_garbled_instruction_is_sent_again_and_runs_once(emulator, turntable, caplog):
+    """Noise on the bus: the servo answers a CRC error and did not run the instruction, so the
+    driver sends it again (the bus is in step: no resynchronisation), within its retries."""
+    emulator.inject_garbled_instruction(1, count=2)
+    turntable.write_register("Profile Velocity", 77)
+    with emulator.lock:
+        assert emulator.servo(1).get("Profile Velocity") == 77 and emulator.servo(1).garble_count == 0
+    assert caplog.text.count("garbled instruction") == 2 and "attempt 2 of 3" in caplog.text
+    assert "discarded" not in caplog.text and "resynchronising" not in caplog.text
+    emulator.inject_garbled_instruction(1, count=1)
+    assert turntable.read_register("Model Number") == 1020
+
+
+def test_a_bus_that_garbles_every_instruction_is_a_clear_error(emulator, turntable):
+    emulator.inject_garbled_instruction(1, count=None)
+    with pytest.raises(ServoCommunicationError, match=r"write Profile Velocity=5 on /dev/pts/\d+ ID 1: the servo "
+                       r"received a garbled instruction \(CRC .*\) and did not run it\. Noise on the bus: check "
+                       r"the cable"):
+        turntable.write_register("Profile Velocity", 5)
+    with emulator.lock:
+        assert emulator.servo(1).get("Profile Velocity") != 5
+    emulator.clear_faults()
+    assert turntable.ping() == 1020
+
+
 def test_overload_refused_without_permission(emulator, turntable):
     turntable.configure(CONFIG)
     turntable.torque_on()

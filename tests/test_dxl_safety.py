@@ -257,3 +257,21 @@ def test_status_readings(emulator):
         emulator.inject_hardware_error(1)
         assert table.hardware_errors() == ("overload error",)
         assert not table.torque_enabled()
+
+
+def test_a_safety_stop_on_a_silent_servo_pings_once_per_attempt(emulator):
+    """Each stop attempt that has to reconnect sends one marker and one ping, not the ping's
+    retries too: the stop is already repeated, and nested retries multiplied the wait (each
+    a whole status timeout) on a servo that has gone silent."""
+    # retries=3 would be 4 pings per reconnect; no allowance: these statuses will not come.
+    table = ServoTurntable.connect(emulator.port_path, retries=3, driver_options={"scheduler_allowance_s": 0.0})
+    emulator.inject_no_reply(1, count=1000)
+    table.driver.close()  # the port a lost link leaves released: the stop must reconnect
+    safety = SafeStop(attempts=3, sleep=no_sleep)
+    safety.register(table.stop_action())
+    report = safety.stop_all("error: test")
+    assert not report.safe and report.unconfirmed[0].attempts == 3
+    assert "does not answer" in report.unconfirmed[0].detail or "no status packet" in report.unconfirmed[0].detail
+    with emulator.lock:
+        ignored = 1000 - emulator.servo(1).silent_count
+    assert ignored == 3 * 2  # per attempt: the reconnect's marker and its single ping

@@ -47,7 +47,9 @@ def test_fault_exits_non_zero_with_how_to_resume_then_resume_completes(tmp_path,
     out = tmp_path / "plant.las"
     journal = tmp_path / "plant.las.journal"
     inject_when_goal_reaches(emulator, 90, lambda: emulator.inject_no_reply(1, count=None))
-    assert cli.main(scan_args(emulator, cylinder, out)) == 1
+    # The CLI's default retries: each costs a full status timeout on the silent servo (1 + 2 for the
+    # lost poll; then the close's and the safety stop's 3 torque-off attempts, one ping and one write each).
+    assert cli.main(scan_args(emulator, cylinder, out, "--retries", "2")) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert f"on {emulator.port_path} ID 1" in err[0] and "no status packet" in err[0]
     assert err[-1] == (f"plantsim: the lines taken are safe in {journal}; to continue, fix the cause and "

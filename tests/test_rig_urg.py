@@ -178,7 +178,8 @@ def assert_covers_the_sweep(raw, sweep_deg=360.0):
     starts = np.degrees(raw.encoder_offset_rad + raw.turntable_angle_rad[:, 0])
     gaps = np.diff(starts)
     bad = np.flatnonzero((gaps <= 0.4 * per_line) | (gaps >= 2.6 * per_line))
-    assert not len(bad), [(int(i), round(float(gaps[i] / per_line), 2)) for i in bad]
+    assert not len(bad), ([(int(i), round(float(gaps[i] / per_line), 2)) for i in bad], len(starts),
+                          np.round(gaps / per_line, 2).tolist())
     assert starts[-1] - starts[0] >= sweep_deg - 1.6 * per_line
 
 

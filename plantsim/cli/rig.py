@@ -343,10 +343,10 @@ def _run_emulator_pair(args: argparse.Namespace, ids: list[int]) -> int:
               f"sensor) seeing {config.plant.mesh or config.plant.bundled} on its turntable; "
               "Ctrl-C to stop", file=sys.stderr, flush=True)
         if args.speed_factor > 1:
-            print(f"plantsim: note: at --speed-factor {args.speed_factor:g} the LiDAR streams "
-                  f"{10 * args.speed_factor:g} scans per wall second, each cast as it is sent; a continuous rig "
-                  "scan may find the stream stalled on a busy machine (step scans are fine): use "
-                  "--speed-factor 1 for continuous scans", file=sys.stderr, flush=True)
+            print(f"plantsim: note: at --speed-factor {args.speed_factor:g} both devices' clocks run "
+                  f"{args.speed_factor:g} x the host's; `plantsim rig scan --mode continuous` times beams on the "
+                  "host's clock and refuses them (step scans are fine): use --speed-factor 1 for continuous "
+                  "scans", file=sys.stderr, flush=True)
         try:
             threading.Event().wait()
         except KeyboardInterrupt:

@@ -12,25 +12,29 @@ URG), the counterpart of :mod:`plantsim.scan.session`'s step loop:
    (address 120, 16 bytes), as fast as the bus allows; each reading's host time comes
    from its tick, the servo clock put on the host clock by intersecting the bounds of
    every read's round trip (:class:`TickClock`). These readings are the encoder log.
-3. The LiDAR streams (MD); each line's beams are on the host clock through the
-   TM-estimated offset. A line is journaled once the encoder log has a reading
-   after its last beam: first the new readings, then the line. Lines are kept from
-   the first one whose start is past the lead-in, one every half line spacing or
-   more, until the scan has ``n_lines``; the reconstruction interpolates the encoder
-   readings to every beam (``angle_mode = "interpolate"``, de-skew).
+3. The LiDAR streams (MD, started before the table turns); each line's beams are
+   on the host clock through the TM-estimated offset. A line is journaled once the
+   encoder log has a reading after its last beam: first the new readings, then the
+   line. Lines are kept from the first one whose start is past the lead-in and
+   that a reading before it shows the table at speed (six spin-ups from where it
+   started), one every half line spacing or more, until the scan has ``n_lines``;
+   the reconstruction interpolates the encoder readings to every beam
+   (``angle_mode = "interpolate"``, de-skew).
 4. Every exit path stops the servo: a fault or Ctrl-C switches its torque off at
    once (the :class:`~plantsim.hardware.safety.SafeStop` of the command checks it
    again); a normal end holds it where it is, then restores position mode.
 
 Resume: the journal keeps the encoder readings and lines; a resumed run turns the
-table back to a little before the last journaled line (its angle modulo one turn,
-in the journal's frame) and goes on until the scan has all its lines, so a fault
-loses at most the line in flight and the coverage is the full sweep.
+table back before the last journaled line (its angle modulo one turn, in the
+journal's frame) by a lead-in to come up to speed and ten line periods (at least
+another lead-in) for a reading to show it and goes on until the scan has all its lines, so a fault loses at most the line
+in flight and the coverage is the full sweep.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
 import threading
@@ -385,6 +389,37 @@ class ContinuousServo:
         d.torque_on()
 
 
+def check_lidar_clock_rate(source) -> None:
+    """Refuses a LiDAR whose clock does not run at the host's rate (before anything moves).
+
+    A continuous scan puts every beam on the host clock through the sensor's
+    timestamps (the TM offset) and the servo's readings through its Realtime Tick;
+    both assume device clocks that run at the host's rate (within ppm). An emulated
+    pair started with ``--speed-factor N`` runs its clocks N times faster than a host
+    on the wall clock: its beams would be placed at the wrong angles, and its LiDAR
+    must cast N x 10 scans per wall second, more than a machine can, so the stream
+    falls behind. The rate bounds of the last clock sync
+    (:attr:`~plantsim.hardware.urg.clock.ClockOffset.rate_low`, ``rate_high``) decide.
+
+    Raises:
+        HardwareError: the bounds exclude the host's rate (by more than
+            :data:`~plantsim.hardware.urg.clock.RATE_TOLERANCE`).
+    """
+    from plantsim.hardware.urg.clock import RATE_TOLERANCE
+
+    lidar = getattr(source, "lidar", None)
+    offset = getattr(lidar, "clock_offset", None)
+    if offset is None or offset.runs_at_host_rate():
+        return
+    rate = f"{offset.rate_low:.3g} to {offset.rate_high:.3g}" if math.isfinite(offset.rate_high) else \
+        f"at least {offset.rate_low:.3g}"
+    raise HardwareError(
+        f"the LiDAR on {getattr(lidar, 'port', 'its port')} counts {rate} s of its time per second of the host's "
+        f"(a sensor runs at 1 within {RATE_TOLERANCE:.0%}): a continuous scan times every beam on the host's clock, "
+        "so it needs the devices in real time. Is it an emulator started with --speed-factor? Restart it with "
+        "--speed-factor 1 for continuous scans (step scans work at any speed factor)")
+
+
 def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, sweep_deg: float,
                            journal_path: str | Path, identity: dict, angle_mode: str, T_base_lidar: np.ndarray,
                            encoder_offset_rad: float = 0.0, resume: bool = False,
@@ -422,6 +457,7 @@ def run_continuous_session(*, turntable, source, grid: BeamGrid, rpm: float, swe
     """
     if not (math.isfinite(sweep_deg) and 0 < sweep_deg):
         raise ValueError(f"sweep_deg must be finite and > 0, got {sweep_deg!r}")
+    check_lidar_clock_rate(source)
     velocity_units = profile_velocity_units(rpm)
     omega = servo_rpm(rpm) * 2 * math.pi / 60.0
     per_line_rad = omega * grid.scan_period_s
@@ -467,36 +503,48 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
             servo.extended_mode()
             # Lines start once the table is at speed: the spin-up, with a margin, or lead_in_rad.
             # (The shaft lags its profile and overshoots a little: six times the profile's spin-up.)
-            lead_in_rad = max(lead_in_rad, 6.0 * servo.spinup_rad(velocity_units))
+            at_speed_rad = 6.0 * servo.spinup_rad(velocity_units)
+            lead_in_rad = max(lead_in_rad, at_speed_rad)
             present = servo.position_rad()
             if journal.lines:
                 # The journal's frame: the present angle plus whole turns, near the last line.
                 last = journal.lines[-1].reported_angle_rad
                 frame_rad = 2 * math.pi * round((last - present) / (2 * math.pi))
                 begin = last + 0.5 * per_line_rad  # the next line starts past the last one
-                present = servo.move_and_wait(last - frame_rad - lead_in_rad, move_timeout_s)
+                # Back by a lead-in (to come up to speed) and ten line periods more (1 s on the URG; at
+                # least another lead-in): a reading has that long to show the table at speed before
+                # `begin`, so the first line past it is kept even when a busy host reads the servo late
+                # (with one lead-in, a busy host's late readings left a gap of 7 lines there).
+                back_rad = lead_in_rad + max(lead_in_rad, 10 * per_line_rad)
+                present = servo.move_and_wait(last - frame_rad - back_rad, move_timeout_s)
                 first_line_rad = journal.lines[0].reported_angle_rad
             else:
                 frame_rad = 0.0
                 begin = present + lead_in_rad
                 first_line_rad = None
+            # Lines count from where a reading shows the table at speed (journal frame).
+            at_speed_rad += present + frame_rad
+            no_progress_limit = 20 + 2 * (begin - present - frame_rad) / per_line_rad
             # Well past the end of the sweep (one more turn): the table turns at constant speed through
             # the last line and beyond, however sparse the readings of a busy host, and is held as soon
             # as the scan has its lines; were the host to die, the servo still stops there (in velocity
             # mode it would turn on).
             end_rad = (first_line_rad if first_line_rad is not None else begin) + sweep_rad + 2 * math.pi
             zero_s = host_clock() - (last_stamp_s + 1.0)  # scan time continues after the journal's
+            # The LiDAR streams before the table turns (its first scan is in): a host slow to start the
+            # stream cannot miss the lines of the turn's start (they are skipped while the table is at rest).
+            stream = source.stream()
+            first = next(stream)
             # The table starts turning before the poller owns the bus (one thread at a time on the port).
             servo.go(end_rad - frame_rad, velocity_units=velocity_units)
             poller = EncoderPoller(servo.driver, host_clock)
             poller.start()
             poller.wait_past(host_clock(), reading_timeout_s)
             next_min = begin
-            stream = source.stream()
             journaled_readings = 0
             stalled = skipped = 0
             begun = False
-            for line in stream:
+            for line in itertools.chain([first], stream):
                 poller.wait_past(float(line.beam_host_times_s[-1]), reading_timeout_s)
                 with poller._new:
                     n_readings = len(poller.readings)
@@ -514,11 +562,11 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
                 if not begun:
                     # A run's first line only once a reading *before* it shows the table past the lead-in
                     # (at speed): an interpolation across the spin-up would misplace it.
-                    begun = bool(np.any((times <= line.first_beam_host_s) & (angles >= begin)))
+                    begun = bool(np.any((times <= line.first_beam_host_s) & (angles >= at_speed_rad)))
                 if not begun or first_angle < next_min:
                     skipped += 1
                     stalled += 1
-                    if stalled > 20 + 2 * lead_in_rad / per_line_rad:
+                    if stalled > no_progress_limit:
                         raise HardwareError(
                             f"the turntable does not turn: {stalled} LiDAR lines without progress at "
                             f"{math.degrees(first_angle):.2f} deg; check the servo's Velocity Limit and load")

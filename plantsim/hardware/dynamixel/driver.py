@@ -63,6 +63,10 @@ class _LostStatus(Exception):
     """A status packet timed out or was corrupt (COMM_RX_TIMEOUT / COMM_RX_CORRUPT)."""
 
 
+class _GarbledInstruction(Exception):
+    """The servo answered with a CRC error: the instruction was garbled on the way and not run."""
+
+
 def _sdk():
     try:
         import dynamixel_sdk
@@ -208,17 +212,22 @@ class DynamixelTurntable:
     def connect(self, port: str, *, baud_bps: int = 57_600, dxl_id: int = 1) -> None:
         """Opens ``port``, pings ``dxl_id`` and verifies its model number.
 
+        The ping is retried ``retries`` times (a lost status).
+
         Raises:
             ValueError: for an unsupported baud or an ID outside [0, 252].
             ServoCommunicationError: if the port cannot be opened or the servo does
                 not answer, or answers with another model number.
         """
-        sdk = _sdk()
         if baud_bps not in ct.BAUD_RATES_BPS.values() or baud_bps == 4_500_000:
             valid = sorted(b for b in ct.BAUD_RATES_BPS.values() if b != 4_500_000)
             raise ValueError(f"baud_bps must be one of {valid} (the SDK refuses 4.5 M), got {baud_bps}")
         if not 0 <= dxl_id <= protocol.MAX_ID:
             raise ValueError(f"dxl_id must be in [0, 252], got {dxl_id}")
+        self._connect(port, baud_bps=baud_bps, dxl_id=dxl_id, retry=True)
+
+    def _connect(self, port: str, *, baud_bps: int, dxl_id: int, retry: bool) -> None:
+        sdk = _sdk()
         if self._port is not None:
             self.close()
         handler = port_handler(port, status_timeout_s=self._status_timeout_s,
@@ -239,7 +248,7 @@ class DynamixelTurntable:
             # A status still owed to an earlier program (or an interrupted connect) on
             # this bus must not be taken for the answer: resynchronise first.
             self.resync(raise_on_failure=False)
-            model_number = self.ping()
+            model_number = self._call("ping", "ping", retry=retry)
             if model_number != self.table.model_number:
                 other = ct.CONTROL_TABLES_BY_NUMBER.get(model_number)
                 hint = f" ({other.model_name}; pass model={other.model_name.lower()!r})" if other else ""
@@ -293,6 +302,11 @@ class DynamixelTurntable:
                 _log.warning("%s (attempt %d of %d); retrying", lost, attempt, attempts)
                 # Out of step until shown otherwise: the next attempt resynchronises first.
                 self._mark_unsynced()
+            except _GarbledInstruction as garbled:
+                # The status came (the bus is in step) and says the instruction was not run.
+                if attempt == attempts:
+                    raise ServoCommunicationError(str(garbled)) from None
+                _log.warning("%s (attempt %d of %d); retrying", garbled, attempt, attempts)
         raise AssertionError("unreachable")
 
     def _mark_unsynced(self) -> None:
@@ -432,6 +446,11 @@ class DynamixelTurntable:
             # was refused because of it (torque on during a shutdown).
             self._raise_alarm(what)
         code = error & 0x7F
+        if code == protocol.ErrorCode.CRC:
+            raise _GarbledInstruction(
+                f"{what} on {self.port_name} ID {self.dxl_id}: the servo received a garbled instruction "
+                f"({protocol.describe_error(code)}) and did not run it. Noise on the bus: check the cable, "
+                "its length and the termination")
         if code:
             raise ServoCommunicationError(
                 f"{what} on {self.port_name} ID {self.dxl_id} refused: {self._packet.getRxPacketError(code)} "
@@ -575,7 +594,9 @@ class DynamixelTurntable:
             if self.port_name is None:
                 raise ServoCommunicationError("emergency stop: never connected; nothing to stop")
             _log.warning("emergency stop: reconnecting to %s to switch torque off", self.port_name)
-            self.connect(self.port_name, baud_bps=self.baud_bps, dxl_id=self.dxl_id)
+            # One ping, not ``retries``: the callers repeat the whole stop (see below), and a
+            # retried ping inside each of their attempts multiplied the wait on a silent servo.
+            self._connect(self.port_name, baud_bps=self.baud_bps, dxl_id=self.dxl_id, retry=False)
         self.resync(raise_on_failure=False)
         register = self.table["Torque Enable"]
         # No retries here: the callers (ServoTurntable.close, a SafeStop) repeat the

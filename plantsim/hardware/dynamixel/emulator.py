@@ -47,6 +47,7 @@ Usage::
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import logging
 import math
@@ -112,6 +113,7 @@ class EmulatedServo:
         self.pending_write: tuple[int, bytes] | None = None
         self.silent_count: int | None = 0  # replies to drop; None = forever
         self.corrupt_count: int | None = 0
+        self.garble_count: int | None = 0  # instructions to receive with a bad CRC; None = forever
         self.late_count: int = 0  # replies to send late
         self.late_s: float = 0.0
         self._reset_registers(keep=())
@@ -486,6 +488,16 @@ class DynamixelEmulator:
         with self._lock:
             self.servo(dxl_id).corrupt_count = count
 
+    def inject_garbled_instruction(self, dxl_id: int, *, count: int | None = 1) -> None:
+        """The next ``count`` instructions to the servo arrive garbled (None: until cleared).
+
+        Noise on the bus: the servo finds the CRC wrong, does not run the
+        instruction and answers with a CRC-error status, as a real one does.
+        """
+        _check_count(count)
+        with self._lock:
+            self.servo(dxl_id).garble_count = count
+
     def inject_late_reply(self, dxl_id: int, *, delay_s: float = 0.06, count: int = 1) -> None:
         """The servo's next ``count`` status packets leave ``delay_s`` late (the bus stalls meanwhile).
 
@@ -514,6 +526,7 @@ class DynamixelEmulator:
             for s in self._servos:
                 s.silent_count = 0
                 s.corrupt_count = 0
+                s.garble_count = 0
                 s.late_count = 0
 
     def disconnect(self) -> None:
@@ -642,6 +655,11 @@ class DynamixelEmulator:
             by_id[s.dxl_id] = s
         inst, params, dxl_id = packet.instruction, packet.params, packet.dxl_id
         broadcast = dxl_id == protocol.BROADCAST_ID
+        target = by_id.get(dxl_id)
+        if packet.crc_ok and target is not None and (target.garble_count is None or target.garble_count > 0):
+            packet = dataclasses.replace(packet, crc_ok=False)
+            if target.garble_count:
+                target.garble_count -= 1
         if not packet.crc_ok:
             return [(by_id[dxl_id], ErrorCode.CRC | by_id[dxl_id].alert, b"")] if dxl_id in by_id else []
         if inst in (Instruction.SYNC_READ, Instruction.SYNC_WRITE, Instruction.BULK_READ,

@@ -75,6 +75,12 @@ class RealTimeClock:
 
 
 
+#: How far a device clock's rate may be from the host's before a scan timed on the host
+#: clock refuses it: crystals differ by ppm; 1 % is far above that and far below an
+#: emulator run faster than real time (``--speed-factor``).
+RATE_TOLERANCE = 0.01
+
+
 @dataclasses.dataclass(frozen=True)
 class ClockOffset:
     """The sensor's clock against the host's: ``sensor_s = host_s + offset_s``.
@@ -90,6 +96,11 @@ class ClockOffset:
         drift: how fast the offset grows, s per host s (the sensor crystal's rate
             error; 1e-4 is 100 ppm), from this and an earlier estimate; 0: unknown.
             ``offset(t) = offset_s + drift * (t - host_time_s)``.
+        rate_low, rate_high: bounds on the sensor clock's rate, sensor s per host s,
+            from the first and last round trips (bounds, not estimates: each reading
+            lies within its own round trip, give or take the timer's 1 ms). A sensor
+            runs at 1 within ppm; an emulator started with ``--speed-factor 20``
+            runs at 20. (0, inf) from a single round trip.
     """
 
     offset_s: float
@@ -98,6 +109,12 @@ class ClockOffset:
     host_time_s: float
     n_round_trips: int
     drift: float = 0.0
+    rate_low: float = 0.0
+    rate_high: float = math.inf
+
+    def runs_at_host_rate(self, tolerance: float = RATE_TOLERANCE) -> bool:
+        """Whether the bounds allow the sensor's clock to run at the host's rate (within ``tolerance``)."""
+        return self.rate_low <= 1.0 + tolerance and self.rate_high >= 1.0 - tolerance
 
     def host_from_sensor(self, sensor_s):
         """Host time of a sensor time (s, unwrapped), the drift taken into account."""
@@ -120,5 +137,33 @@ def estimate_offset(samples: list[tuple[float, int, float]]) -> ClockOffset:
     if round_trip < 0:
         raise ValueError(f"a round trip ended before it began ({sent} -> {received}): is the host clock monotonic?")
     middle = 0.5 * (sent + received)
+    rate_low, rate_high = rate_bounds(samples)
     return ClockOffset(offset_s=(sensor_ms + 0.5) / 1000.0 - middle, uncertainty_s=0.5 * round_trip + 0.0005,
-                       round_trip_s=round_trip, host_time_s=middle, n_round_trips=len(samples))
+                       round_trip_s=round_trip, host_time_s=middle, n_round_trips=len(samples),
+                       rate_low=rate_low, rate_high=rate_high)
+
+
+def rate_bounds(samples: list[tuple[float, int, float]], *, resolution_ms: float = 1.0) -> tuple[float, float]:
+    """Bounds on a device clock's rate against the host's, from round trips in time order.
+
+    Each reading ``(host_sent_s, device_ms, host_received_s)`` was taken inside its
+    round trip, and the device's timer counts whole ``resolution_ms``, so between the
+    first and the last reading the device counted its span within
+    ``[sent_last - received_first, received_last - sent_first]`` of host time:
+
+        rate_low  = (device span - resolution) / (received_last - sent_first)
+        rate_high = (device span + resolution) / (sent_last - received_first)
+
+    However late a busy host reads, these bound the rate (a late read widens the
+    host interval, never moves it off). Returns (0, inf) for fewer than two samples
+    or intervals that bound nothing.
+    """
+    if len(samples) < 2:
+        return 0.0, math.inf
+    (sent0, device0, received0), (sent1, device1, received1) = samples[0], samples[-1]
+    span_s = (device1 - device0) / 1000.0
+    res_s = resolution_ms / 1000.0
+    outer, inner = received1 - sent0, sent1 - received0
+    low = max(0.0, (span_s - res_s) / outer) if outer > 0 else 0.0
+    high = (span_s + res_s) / inner if inner > 0 else math.inf
+    return low, high

@@ -270,6 +270,12 @@ class UrgEmulator:
         with self._lock:
             return self._stream is not None
 
+    @property
+    def replies_waiting(self) -> int:
+        """Replies and scans made but not yet handed to the pty (their ready time not reached)."""
+        with self._lock:
+            return len(self._queue)
+
     def sensor_ms(self, t_s: float) -> int:
         """The sensor timer's reading at clock time ``t_s``: ms mod 2^24."""
         # Rounded to ns first: (t + offset) * 1000 of a whole ms must not floor to the ms before.
@@ -529,8 +535,13 @@ class UrgEmulator:
         return n * self.SCAN_PERIOD_S + (s["end"] + 1) / self.ARES * self.SCAN_PERIOD_S
 
     def _schedule_stream(self, now: float) -> None:
+        # One scan per pass of the loop at most: a provider slower than the stream (a heavy
+        # plant cast at --speed-factor 20, or on a starved core) then sends its scans late
+        # but one by one, and commands (QT) are still read and answered between them. Casting
+        # every scan due at once made the backlog grow with each batch (a batch's cast time
+        # makes more scans due), and nothing was sent: the host saw the stream stall.
         s = self._stream
-        while s is not None and not self._stalled and self._stream_ready_s(s["next_n"]) <= now:
+        if s is not None and not self._stalled and self._stream_ready_s(s["next_n"]) <= now:
             n = s["next_n"]
             if s["remaining"] is not None:
                 s["remaining"] -= 1
@@ -550,7 +561,6 @@ class UrgEmulator:
                 self._stream = None
                 if not s["laser_was_on"]:
                     self._set_laser(False, now)
-            s = self._stream
 
     def _scan_reply(self, echo: str, status: str, symbol: str, n: int, start: int, end: int,
                     cluster: int) -> bytes:
