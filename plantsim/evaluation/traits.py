@@ -563,10 +563,34 @@ def convex_hull_volume(points: Any) -> float:
         logger.warning("convex hull needs 4 points, got %d; volume is NaN", len(pts))
         return _NAN
     try:
-        return float(ConvexHull(pts).volume)
+        return float(ConvexHull(_hull_candidates(pts)).volume)
     except QhullError as exc:
         logger.warning("convex hull failed (flat or degenerate cloud), volume is NaN: %s", exc)
         return _NAN
+
+
+def _hull_candidates(pts: np.ndarray) -> np.ndarray:
+    """The points that can be vertices of the convex hull of ``pts`` (n, 3).
+
+    Akl-Toussaint throw-away (Akl & Toussaint 1978, Inf. Proc. Letters 7(5)):
+    the extreme points along 26 directions span a polytope inside the hull; a point
+    strictly inside it is no hull vertex, so dropping it leaves the hull exactly the
+    same while Qhull sees a few per cent of a dense cloud.
+    """
+    if len(pts) < 200:
+        return pts
+    dirs = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                     if (i, j, k) != (0, 0, 0)], dtype=np.float64)
+    centred = pts - pts.mean(axis=0)
+    extreme = np.unique(np.argmax(centred @ dirs.T, axis=0))
+    try:
+        inner = ConvexHull(centred[extreme])
+    except QhullError:
+        return pts
+    # Inside every facet plane by a margin (relative to the cloud's size): safe to drop.
+    margin = 1e-9 * float(np.ptp(centred, axis=0).max())
+    inside = (centred @ inner.equations[:, :3].T + inner.equations[:, 3] < -margin).all(axis=1)
+    return pts[~inside]
 
 
 def projected_area_xy(points: Any, *, cell: float = 0.005) -> float:
@@ -589,7 +613,9 @@ def projected_area_xy(points: Any, *, cell: float = 0.005) -> float:
     if len(pts) == 0:
         return 0.0
     ij = np.floor(pts[:, :2] / cell).astype(np.int64)
-    return float(len(np.unique(ij, axis=0)) * cell * cell)
+    ij -= ij.min(axis=0)
+    # One int64 key a cell: np.unique on rows sorts structured records, far slower.
+    return float(len(np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])) * cell * cell)
 
 
 # --------------------------------------------------------------------------
