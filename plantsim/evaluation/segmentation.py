@@ -422,6 +422,42 @@ def _graph(nodes: np.ndarray, link: float) -> sparse.csr_matrix:
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m)).tocsr()
 
 
+def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.ndarray,
+                        stems: tuple[StemBase, ...], tracks: list[np.ndarray], *,
+                        margin: float, link: float) -> tuple[np.ndarray, np.ndarray]:
+    """Give the points of stem pieces that lie off the stem to the nearest leaf.
+
+    A level set crossing the stem also holds the bases of the leaves wrapped round
+    it, so whole pieces labelled stem swallow leaf area. A stem is a cylinder round
+    the axis its skeleton walk tracked through compact pieces (``tracks``: z, x, y,
+    interpolated in z; held constant beyond the ends), and only points within the measured
+    radius plus ``margin`` (noise and voxel) of that axis stay stem; the others take
+    the label of their nearest leaf point when it lies within ``link`` (the graph's
+    link widened by the noise band of both surfaces, ``2 link + 8 noise``), else no
+    label (one k-d tree query, no loop over points).
+    """
+    stem_label, leaf_label = stem_label.copy(), leaf_label.copy()
+    off = np.zeros(len(pts), dtype=bool)
+    for si, st in enumerate(stems):
+        m = np.flatnonzero(stem_label == si)
+        if len(m) == 0:
+            continue
+        tr = tracks[si][np.argsort(tracks[si][:, 0], kind="stable")]
+        axis_xy = np.column_stack([np.interp(pts[m, 2], tr[:, 0], tr[:, 1]),
+                                   np.interp(pts[m, 2], tr[:, 0], tr[:, 2])])
+        r = np.hypot(*(pts[m, :2] - axis_xy).T)
+        off[m[r > 0.5 * st.diameter_m + margin]] = True
+    leaf_pts = np.flatnonzero(leaf_label >= 0)
+    if off.any() and len(leaf_pts):
+        released = np.flatnonzero(off)
+        d, j = cKDTree(pts[leaf_pts]).query(pts[released], workers=-1)
+        # Only points touching a leaf join it; the rest (another organ's
+        # fragments) leave the stem unlabelled.
+        stem_label[released] = -1
+        leaf_label[released] = np.where(d <= link, leaf_label[leaf_pts[j]], -1)
+    return stem_label, leaf_label
+
+
 def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | None = None
                    ) -> Segmentation:
     """Stems and leaves of a cloud (method in the module docstring).
@@ -494,16 +530,19 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     # Stems: follow the skeleton up from each stem's root piece.
     is_stem_piece = np.full(n_pieces, -1, dtype=np.int64)
     stem_tops = []
+    axis_tracks: list[np.ndarray] = []  # per stem, (k, 3): z, x, y of its axis
     for si, st in enumerate(stems):
         c0 = np.array(st.center_xy_m)
         root_pieces = np.unique(piece[roots & (np.hypot(nodes[:, 0] - c0[0], nodes[:, 1] - c0[1])
                                                  <= st.diameter_m / 2 + 2 * v)])
         if len(root_pieces) == 0:
             stem_tops.append([c0[0], c0[1], s.base_z])
+            axis_tracks.append(np.array([[s.base_z, c0[0], c0[1]]]))
             continue
         cur = int(root_pieces[np.argmin(centroid[root_pieces, 2])])
         axis_xy, prev_xy = c0.copy(), c0.copy()
         reach = max(1.5 * st.diameter_m, 3.0 * v)
+        track = [(s.base_z, c0[0], c0[1])]
         while True:
             is_stem_piece[cur] = si
             kids = [k for k in children[cur] if is_stem_piece[k] < 0]
@@ -517,8 +556,10 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
                 break
             if spread[kids[best]] <= reach:
                 prev_xy, axis_xy = axis_xy, centroid[kids[best], :2].copy()
+                track.append((float(centroid[kids[best], 2]), axis_xy[0], axis_xy[1]))
             cur = kids[best]
         stem_tops.append(centroid[cur].tolist())
+        axis_tracks.append(np.array(track))
 
     # Leaves: tips with a long enough branch, walked down to the stem.
     tips = [p for p in range(n_pieces) if not children[p] and is_stem_piece[p] < 0]
@@ -552,6 +593,10 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     point_piece = node_piece[inverse]
     stem_label = is_stem_piece[point_piece]
     leaf_label = np.where(stem_label >= 0, -1, owner[point_piece])
+    if len(stems) and len(leaf_chains):
+        stem_label, leaf_label = _release_leaf_bases(
+            pts, stem_label, leaf_label, stems, axis_tracks, margin=2.5 * scale.noise_m + v,
+            link=2 * s.link_factor * v + 8 * scale.noise_m)
     midribs = tuple(centroid[np.array(ch)] for ch in leaf_chains)
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,

@@ -663,8 +663,8 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
     reach beyond its last centroid. Width: per midrib node, the robust extent
     (2nd to 98th percentile) of the node's points across the midrib, along their main
-    in-plane axis; the 90th percentile over nodes (the largest is where a
-    neighbour touches). Area: the triangulated ribbon between the
+    in-plane axis; the 90th percentile over the nodes of the outer four fifths of
+    the midrib (the largest is where a neighbour touches; the base is sheath). Area: the triangulated ribbon between the
     two margins, i.e. sum over midrib segments of the mean of the two node widths
     times the segment length (a leaf surface unrolled along its midrib, as in the
     length-width area models of Montgomery 1911, here with the measured width
@@ -697,8 +697,13 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     chord = midrib[-1] - midrib[0]
     incl = float(np.degrees(np.arctan2(chord[2], np.hypot(chord[0], chord[1]))))
     # The widest cross-sections are where a neighbouring organ touches: the 90th
-    # percentile of the node widths reads the leaf's own maximum width.
-    return length, float(np.percentile(widths[1:], 90)), area, incl
+    # percentile of the node widths reads the leaf's own maximum width. The basal
+    # fifth of the midrib is left out: there the sheath wraps the stem and the
+    # stem's off-axis points join the leaf (segmentation._release_leaf_bases).
+    along = np.r_[0.0, np.cumsum(seg_len)]
+    outer = widths[along >= 0.2 * along[-1]]
+    outer = outer if len(outer) else widths[1:]
+    return length, float(np.percentile(outer, 90)), area, incl
 
 
 def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None) -> PlantTraits:
