@@ -7,10 +7,11 @@ laser-scanned plants by Xu, Gossett & Chen (2007, "Knowledge and heuristic-based
 modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
 "PypeTree", Sensors 14:4271-4289):
 
-1. Scale. The point spacing ``h`` (from the median distance to the 16th neighbour) and the noise
-   ``sigma`` (median RMS distance of a point's 16 neighbours from their best-fit
-   plane; Hoppe et al. 1992) are measured on the cloud; every length below is a
-   multiple of ``v = max(2 h, 1.5 sigma)``, never a fixed millimetre figure.
+1. Scale. The point spacing ``h`` (from the distance to the 16th neighbour) and the noise
+   ``sigma`` (RMS residual of local plane fits, Hoppe et al. 1992, at the most
+   surface-like of a ladder of radii, Mitra & Nguyen 2003; :func:`estimate_scale`)
+   are measured on the cloud; every length below is a multiple of
+   ``v = max(2 h, 1.5 sigma)``, never a fixed millimetre figure.
 2. Outliers: statistical outlier removal (Rusu et al. 2008): a point whose mean
    distance to its 8 neighbours exceeds the cloud's mean by 3 standard deviations
    is dropped.
@@ -30,7 +31,9 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    within a few radii of it. Every other tip whose branch (tip to the junction
    below it) is longer than ``min_leaf_length`` is a leaf tip; a leaf is the chain
    of nodes from its tip down to the stem, shared nodes going to the longer leaf;
-   shorter spurs join the leaf they hang from.
+   shorter spurs join the leaf they hang from. Stem pieces keep only the points
+   within the stem's radius (plus noise and a voxel) of the axis the walk tracked;
+   the rest, leaf bases wrapped round the stem, go to the leaf they touch.
 
 Validity: plants with thin stems and strap or broad leaves attached to them
 (cereals, maize, seedlings), turntable frame with z up and the base at ``base_z``.
