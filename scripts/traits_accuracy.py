@@ -1,7 +1,8 @@
 """Trait accuracy on procedural plants with exact traits (issue 13 targets).
 
 Scans maize, wheat (tillers) and a rosette with the pipeline and prints, per plant,
-estimate/truth (error) for height, leaf count and leaf area, with the issue's targets:
+estimate/truth (error) for height, leaf count and leaf area, with the issue's targets,
+then the stems found and their mean diameter:
 ideal 0.5 deg: 2 %, 20 %, 20 %; realistic 1 deg: 5 %, 40 %, 35 %.
 
     python scripts/traits_accuracy.py            # both settings
@@ -30,6 +31,10 @@ def _err(estimate: float, truth: float, target: float) -> str:
     return f"{estimate:.4g}/{truth:.4g} ({100 * rel:.0f}% {flag})"
 
 
+def _mm(value: float) -> str:
+    return "none" if value != value else f"{1e3 * value:.1f}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--step", type=float, help="one step for both settings (default 0.5 ideal, 1 realistic)")
@@ -51,7 +56,9 @@ def main() -> None:
                   f"height {_err(est.height_m, tr['height_m'], t_h)}  "
                   f"leaves {_err(est.leaf_count, len(tr['leaves']), t_n)}  "
                   f"area {_err(est.leaf_area_m2, tr['leaf_area_m2'], t_a)}  "
-                  f"stems {est.stem_count}/{len(tr['stems'])}  {time.perf_counter() - t0:.1f} s", flush=True)
+                  f"stems {est.stem_count}/{len(tr['stems'])} "
+                  f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm  "
+                  f"{time.perf_counter() - t0:.1f} s", flush=True)
 
 
 if __name__ == "__main__":

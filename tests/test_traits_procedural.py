@@ -1,8 +1,17 @@
 """Traits from pipeline scans of procedural plants against their exact truth (issue 13).
 
-Asserted here: the issue's targets that the current method meets (docs/traits.md has the
-full table from scripts/traits_accuracy.py). Not yet met, so not asserted: maize and
-rosette leaf count and area from ideal scans, and every leaf trait from realistic scans.
+The issue's targets: from an ideal 0.5-degree scan, height within 2 %, leaf count
+within 20 %, leaf area within 20 %; from a realistic 1-degree scan (URG-04LX noise
+model), 5 %, 40 % and 35 %. Plants: maize (9 leaves), wheat (4 tillers, 16 leaves,
+stems 4 mm), rosettes of 12 and 30 overlapping leaves (touching leaves). Each scan
+runs once per module (cached).
+
+Asserted: every target the current segmentation meets (``scripts/traits_accuracy.py``
+prints the whole table). Targets not met yet are strict ``xfail``s, so a fix that
+reaches one turns the test red until it is promoted to a plain assertion:
+ideal maize leaf count (13 for 9) and area (-29 %); ideal rosette leaf area
+(-46 % / -68 %) and 30-leaf count (10); realistic wheat (no stem found, 4 leaves
+for 16, area +296 %) and realistic rosettes (1 leaf, area -62 % / -80 %).
 """
 
 import functools
@@ -20,40 +29,83 @@ from plantsim.scan.schedule import StepScan
 PLANTS = {
     "maize": lambda: make_maize(seed=0),
     "wheat": lambda: make_wheat(seed=0),
-    "rosette": lambda: make_rosette(seed=2, n_leaves=30),
+    "rosette12": lambda: make_rosette(seed=1, n_leaves=12),
+    "rosette30": lambda: make_rosette(seed=2, n_leaves=30),
 }
+IDEAL = (True, 0.5)
+REALISTIC = (False, 1.0)
+NOT_YET = "issue 13 target not met by the current segmentation (see the module docstring)"
 
 
 @functools.lru_cache(maxsize=None)
 def _scan(name: str, ideal: bool, step_deg: float):
     plant = PLANTS[name]()
-    result = run_scan(RunConfig(ideal=ideal, scan=StepScan(step_deg=step_deg)),
-                      plant=plant_from_arrays(plant.vertices_m, plant.faces))
-    points = result.cloud.plant_only().points_turntable
-    return traits.extract_traits(points), plant.traits
+    logging.getLogger("plantsim").setLevel(logging.ERROR)
+    try:
+        result = run_scan(RunConfig(ideal=ideal, scan=StepScan(step_deg=step_deg)),
+                          plant=plant_from_arrays(plant.vertices_m, plant.faces))
+        points = result.cloud.plant_only().points_turntable
+        return traits.extract_traits(points), plant.traits
+    finally:
+        logging.getLogger("plantsim").setLevel(logging.NOTSET)
 
 
 def _rel(estimate, truth):
     return abs(estimate - truth) / truth
 
 
-@pytest.mark.parametrize("name", sorted(PLANTS))
-def test_height_from_an_ideal_half_degree_scan_within_two_percent(name, caplog):
-    caplog.set_level(logging.ERROR)
-    est, truth = _scan(name, True, 0.5)
+def _miss(*ids):
+    return [pytest.param(*i, marks=pytest.mark.xfail(strict=True, reason=NOT_YET)) for i in ids]
+
+
+@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "rosette30"])
+def test_height_from_an_ideal_half_degree_scan_within_two_percent(name):
+    est, truth = _scan(name, *IDEAL)
     assert _rel(est.height_m, truth["height_m"]) <= 0.02
 
 
-@pytest.mark.parametrize("name", sorted(PLANTS))
-def test_height_from_a_realistic_one_degree_scan_within_five_percent(name, caplog):
-    caplog.set_level(logging.ERROR)
-    est, truth = _scan(name, False, 1.0)
+@pytest.mark.parametrize("name", ["maize", "wheat", "rosette30"]
+                         + _miss(("rosette12",)))  # 5.3 %: the noisy top of a 7 cm plant
+def test_height_from_a_realistic_one_degree_scan_within_five_percent(name):
+    est, truth = _scan(name, *REALISTIC)
     assert _rel(est.height_m, truth["height_m"]) <= 0.05
 
 
-def test_wheat_tillers_leaf_count_and_area_from_an_ideal_scan_meet_the_targets(caplog):
-    caplog.set_level(logging.ERROR)
-    est, truth = _scan("wheat", True, 0.5)
-    assert est.stem_count == len(truth["stems"]) == 4
+@pytest.mark.parametrize("name", ["wheat", "rosette12"] + _miss(("maize",), ("rosette30",)))
+def test_leaf_count_from_an_ideal_scan_within_twenty_percent(name):
+    est, truth = _scan(name, *IDEAL)
     assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.20
+
+
+@pytest.mark.parametrize("name", ["wheat"] + _miss(("maize",), ("rosette12",), ("rosette30",)))
+def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
+    est, truth = _scan(name, *IDEAL)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.20
+
+
+@pytest.mark.parametrize("name", ["maize"] + _miss(("wheat",), ("rosette12",), ("rosette30",)))
+def test_leaf_count_from_a_realistic_scan_within_forty_percent(name):
+    est, truth = _scan(name, *REALISTIC)
+    assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.40
+
+
+@pytest.mark.parametrize("name", ["maize"] + _miss(("wheat",), ("rosette12",), ("rosette30",)))
+def test_leaf_area_from_a_realistic_scan_within_thirty_five_percent(name):
+    est, truth = _scan(name, *REALISTIC)
+    assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.35
+
+
+def test_stems_found_from_the_base_up_with_their_diameter():
+    est, truth = _scan("wheat", *IDEAL)
+    assert est.stem_count == len(truth["stems"]) == 4
+    assert _rel(est.stem_diameter_m, truth["stem_diameter_m"]) <= 0.10
+    est, truth = _scan("maize", *IDEAL)
+    assert est.stem_count == 1
+    assert _rel(est.stem_diameter_m, truth["stem_diameter_m"]) <= 0.10
+
+
+def test_a_noisy_maize_stem_is_still_found():
+    # One stray point used to make the base slices 74-106 mm wide: no stem.
+    est, _ = _scan("maize", *REALISTIC)
+    assert est.stem_count == 1
+    assert 0.010 <= est.stem_diameter_m <= 0.05

@@ -340,7 +340,15 @@ def fit_circle(points_xy: Any) -> CircleFit:
         def resid(x: np.ndarray) -> np.ndarray:
             return np.hypot(pts[:, 0] - x[0], pts[:, 1] - x[1]) - x[2]
 
-        return optimize.least_squares(resid, start, method="lm" if len(pts) >= 3 else "trf").x
+        def jac(x: np.ndarray) -> np.ndarray:
+            # d(|p - c| - r)/d(cx, cy, r): the analytic Jacobian, 10x fewer
+            # residual calls than finite differences.
+            dx, dy = pts[:, 0] - x[0], pts[:, 1] - x[1]
+            rho = np.maximum(np.hypot(dx, dy), 1e-300)
+            return np.column_stack([-dx / rho, -dy / rho, -np.ones(len(pts))])
+
+        return optimize.least_squares(resid, start, jac=jac,
+                                      method="lm" if len(pts) >= 3 else "trf").x
 
     x = geometric(p, np.array([c0[0], c0[1], r0]))
     res = np.hypot(p[:, 0] - x[0], p[:, 1] - x[1]) - x[2]
@@ -563,10 +571,34 @@ def convex_hull_volume(points: Any) -> float:
         logger.warning("convex hull needs 4 points, got %d; volume is NaN", len(pts))
         return _NAN
     try:
-        return float(ConvexHull(pts).volume)
+        return float(ConvexHull(_hull_candidates(pts)).volume)
     except QhullError as exc:
         logger.warning("convex hull failed (flat or degenerate cloud), volume is NaN: %s", exc)
         return _NAN
+
+
+def _hull_candidates(pts: np.ndarray) -> np.ndarray:
+    """The points that can be vertices of the convex hull of ``pts`` (n, 3).
+
+    Akl-Toussaint throw-away (Akl & Toussaint 1978, Inf. Proc. Letters 7(5)):
+    the extreme points along 26 directions span a polytope inside the hull; a point
+    strictly inside it is no hull vertex, so dropping it leaves the hull exactly the
+    same while Qhull sees a few per cent of a dense cloud.
+    """
+    if len(pts) < 200:
+        return pts
+    dirs = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                     if (i, j, k) != (0, 0, 0)], dtype=np.float64)
+    centred = pts - pts.mean(axis=0)
+    extreme = np.unique(np.argmax(centred @ dirs.T, axis=0))
+    try:
+        inner = ConvexHull(centred[extreme])
+    except QhullError:
+        return pts
+    # Inside every facet plane by a margin (relative to the cloud's size): safe to drop.
+    margin = 1e-9 * float(np.ptp(centred, axis=0).max())
+    inside = (centred @ inner.equations[:, :3].T + inner.equations[:, 3] < -margin).all(axis=1)
+    return pts[~inside]
 
 
 def projected_area_xy(points: Any, *, cell: float = 0.005) -> float:
@@ -589,7 +621,9 @@ def projected_area_xy(points: Any, *, cell: float = 0.005) -> float:
     if len(pts) == 0:
         return 0.0
     ij = np.floor(pts[:, :2] / cell).astype(np.int64)
-    return float(len(np.unique(ij, axis=0)) * cell * cell)
+    ij -= ij.min(axis=0)
+    # One int64 key a cell: np.unique on rows sorts structured records, far slower.
+    return float(len(np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1])) * cell * cell)
 
 
 # --------------------------------------------------------------------------
@@ -637,8 +671,8 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
     reach beyond its last centroid. Width: per midrib node, the robust extent
     (2nd to 98th percentile) of the node's points across the midrib, along their main
-    in-plane axis; the 90th percentile over nodes (the largest is where a
-    neighbour touches). Area: the triangulated ribbon between the
+    in-plane axis; the 90th percentile over the nodes of the outer four fifths of
+    the midrib (the largest is where a neighbour touches; the base is sheath). Area: the triangulated ribbon between the
     two margins, i.e. sum over midrib segments of the mean of the two node widths
     times the segment length (a leaf surface unrolled along its midrib, as in the
     length-width area models of Montgomery 1911, here with the measured width
@@ -671,8 +705,13 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     chord = midrib[-1] - midrib[0]
     incl = float(np.degrees(np.arctan2(chord[2], np.hypot(chord[0], chord[1]))))
     # The widest cross-sections are where a neighbouring organ touches: the 90th
-    # percentile of the node widths reads the leaf's own maximum width.
-    return length, float(np.percentile(widths[1:], 90)), area, incl
+    # percentile of the node widths reads the leaf's own maximum width. The basal
+    # fifth of the midrib is left out: there the sheath wraps the stem and the
+    # stem's off-axis points join the leaf (segmentation._release_leaf_bases).
+    along = np.r_[0.0, np.cumsum(seg_len)]
+    outer = widths[along >= 0.2 * along[-1]]
+    outer = outer if len(outer) else widths[1:]
+    return length, float(np.percentile(outer, 90)), area, incl
 
 
 def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None) -> PlantTraits:
