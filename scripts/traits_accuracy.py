@@ -17,7 +17,7 @@ import time
 
 from plantsim.evaluation import traits
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import make_maize, make_rosette, make_wheat
+from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
@@ -42,7 +42,8 @@ def main() -> None:
     logging.disable(logging.WARNING)
     plants = (("maize 9 leaves", make_maize(seed=0)), ("wheat 4 tillers", make_wheat(seed=0)),
               ("rosette 12 leaves", make_rosette(seed=1, n_leaves=12)),
-              ("rosette 30 leaves", make_rosette(seed=2, n_leaves=30)))
+              ("rosette 30 leaves", make_rosette(seed=2, n_leaves=30)),
+              ("dicot 8 trifoliate leaves (24 laminae)", make_dicot(seed=0)))
     for setting, default_step in (("ideal", 0.5), ("realistic", 1.0)):
         step = args.step or default_step
         t_h, t_n, t_a = TARGETS[setting]
