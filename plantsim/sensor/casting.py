@@ -266,7 +266,7 @@ def turning_bounds(scene: Scene, *, margin_m: float = 1e-6, geoms: np.ndarray | 
       when nothing that a ray may hit turns.
     """
     if scene.layout is not None:
-        return _layout_bounds(scene, margin_m=margin_m, geoms=geoms)
+        return _axis_cylinder(_layout_parts(scene, geoms), margin_m)
     import mujoco
 
     model = scene.model
@@ -274,68 +274,73 @@ def turning_bounds(scene: Scene, *, margin_m: float = 1e-6, geoms: np.ndarray | 
     mujoco.mj_kinematics(model, data)
     cast = np.isin(model.geom_group, np.nonzero(CAST_GEOMGROUP)[0])
     chosen = turning_geoms(scene) if geoms is None else (np.asarray(geoms, dtype=bool) & turning_geoms(scene))
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
-    radius, z_min, z_max = 0.0, np.inf, -np.inf
+    parts = []
     for g in np.nonzero(chosen & cast)[0]:
         pos, rot = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)
         if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_dataid[g] >= 0:
             mesh = model.geom_dataid[g]
             v0, nv = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
-            v = model.mesh_vert[v0:v0 + nv].astype(np.float64) @ rot.T + pos
-            # float32 vertices: pad by their rounding as well.
-            pad = 1e-6 * float(np.abs(v).max(initial=0.0))
-            radius = max(radius, float(np.hypot(v[:, 0], v[:, 1]).max(initial=0.0)) + pad)
-            z_min, z_max = min(z_min, float(v[:, 2].min()) - pad), max(z_max, float(v[:, 2].max()) + pad)
+            parts.append(("vertices", model.mesh_vert[v0:v0 + nv].astype(np.float64) @ rot.T + pos))
         else:
-            rb = float(model.geom_rbound[g])
-            if not rb > 0:  # a plane or an unbounded geom: no cylinder holds it
-                return np.inf, -np.inf, np.inf
-            r, lo, hi = float(np.hypot(pos[0], pos[1])) + rb, pos[2] - rb, pos[2] + rb
             box = model.geom_aabb[g]
-            if np.all(np.isfinite(box)):
-                corners = (box[:3] + box[3:] * signs) @ rot.T + pos
-                pad = 1e-9 * (1.0 + float(np.abs(corners).max()))
-                r = min(r, float(np.hypot(corners[:, 0], corners[:, 1]).max()) + pad)
-                lo, hi = max(lo, float(corners[:, 2].min()) - pad), min(hi, float(corners[:, 2].max()) + pad)
-            radius = max(radius, r)
-            z_min, z_max = min(z_min, lo), max(z_max, hi)
-    if z_max < z_min:
-        return 0.0, 0.0, -1.0
-    return radius + margin_m, z_min - margin_m, z_max + margin_m
+            parts.append(("primitive", pos, float(model.geom_rbound[g]), box[:3], box[3:], rot))
+    return _axis_cylinder(parts, margin_m)
 
 
-def _layout_bounds(scene: Scene, *, margin_m: float, geoms: np.ndarray | None) -> tuple[float, float, float]:
-    """:func:`turning_bounds` from the scene's layout (no MuJoCo): the same rules.
+def _layout_parts(scene: Scene, geoms: np.ndarray | None) -> list:
+    """The parts of :func:`_axis_cylinder` from the scene's layout (no MuJoCo).
 
-    The plant is bounded by its own float64 vertices (MuJoCo's model holds them as
-    float32, hence the same relative pad).
+    The plant is given by its own float64 vertices (MuJoCo's model holds them as
+    float32; the same relative pad covers both).
     """
     from plantsim.sensor.primitives import bounding_radius, local_half_extents
 
     layout = scene.layout
     cast = np.isin(layout.group, np.nonzero(CAST_GEOMGROUP)[0])
     chosen = layout.turning if geoms is None else (np.asarray(geoms, dtype=bool) & layout.turning)
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
-    radius, z_min, z_max = 0.0, np.inf, -np.inf
+    parts = []
     for g in np.nonzero(chosen & cast)[0]:
         geom = layout.geoms[g]
         if geom.type == "mesh":
-            if scene.plant is None or geom.name != "plant":
+            parts.append(("vertices", scene.plant.vertices_turntable if scene.plant is not None
+                          and geom.name == "plant" else None))
+        else:
+            parts.append(("primitive", geom.pos_base, bounding_radius(geom), np.zeros(3), local_half_extents(geom),
+                          geom.R_base_geom))
+    return parts
+
+
+_CORNER_SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
+
+
+def _axis_cylinder(parts: list, margin_m: float) -> tuple[float, float, float]:
+    """The cylinder about the Z axis holding every part (see :func:`turning_bounds`).
+
+    Args:
+      parts: ``("vertices", (n, 3) base frame or None for unknown)`` or
+        ``("primitive", pos (3,), bounding radius, box centre (3,) and half sizes (3,)
+        in the geom's frame, R (3, 3) the geom's axes)``.
+    """
+    radius, z_min, z_max = 0.0, np.inf, -np.inf
+    for part in parts:
+        if part[0] == "vertices":
+            v = part[1]
+            if v is None:
                 return np.inf, -np.inf, np.inf
-            v = scene.plant.vertices_turntable
+            # float32 vertices: pad by their rounding as well.
             pad = 1e-6 * float(np.abs(v).max(initial=0.0))
             radius = max(radius, float(np.hypot(v[:, 0], v[:, 1]).max(initial=0.0)) + pad)
             z_min, z_max = min(z_min, float(v[:, 2].min()) - pad), max(z_max, float(v[:, 2].max()) + pad)
             continue
-        rb = bounding_radius(geom)
-        if not np.isfinite(rb):
+        _, pos, rb, centre, half, rot = part
+        if not (rb > 0 and np.isfinite(rb)):  # a plane or an unbounded geom: no cylinder holds it
             return np.inf, -np.inf, np.inf
-        pos = geom.pos_base
         r, lo, hi = float(np.hypot(pos[0], pos[1])) + rb, pos[2] - rb, pos[2] + rb
-        corners = (local_half_extents(geom) * signs) @ geom.R_base_geom.T + pos
-        pad = 1e-9 * (1.0 + float(np.abs(corners).max()))
-        r = min(r, float(np.hypot(corners[:, 0], corners[:, 1]).max()) + pad)
-        lo, hi = max(lo, float(corners[:, 2].min()) - pad), min(hi, float(corners[:, 2].max()) + pad)
+        if np.all(np.isfinite(centre)) and np.all(np.isfinite(half)):
+            corners = (centre + half * _CORNER_SIGNS) @ rot.T + pos
+            pad = 1e-9 * (1.0 + float(np.abs(corners).max()))
+            r = min(r, float(np.hypot(corners[:, 0], corners[:, 1]).max()) + pad)
+            lo, hi = max(lo, float(corners[:, 2].min()) - pad), min(hi, float(corners[:, 2].max()) + pad)
         radius = max(radius, r)
         z_min, z_max = min(z_min, lo), max(z_max, hi)
     if z_max < z_min:
