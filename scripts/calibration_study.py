@@ -28,7 +28,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 if str(REPO_ROOT) not in sys.path:
     sys.path.insert(0, str(REPO_ROOT))
 
-from plantsim.cloud.calibration import PARAMETERS, calibrate  # noqa: E402
+from plantsim.cloud.calibration import MODEL_STD, PARAMETERS, calibrate  # noqa: E402
+from plantsim.plant.target import CALIBRATION_TARGET, target_stl_bytes  # noqa: E402
 from plantsim.rig.geometry import RigGeometry  # noqa: E402
 from plantsim.scan.config import PlantOptions, RunConfig  # noqa: E402
 from plantsim.scan.pipeline import run_scan  # noqa: E402
@@ -56,9 +57,22 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--fit-range-offset", action="store_true",
                         help="fit the range offset too instead of telling the calibration the sensor's bias")
+    parser.add_argument("--block-length-mm", type=float, default=None,
+                        help="study another target: the block this long (X), the rest as shipped")
+    parser.add_argument("--no-model-std", action="store_true",
+                        help="state the fit's statistical sigma alone (to estimate a target's systematic share)")
     parser.add_argument("-o", "--output", type=Path, help="also write the table as Markdown here")
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
+    target = CALIBRATION_TARGET
+    plant = PlantOptions(bundled="calibration-target")
+    if args.block_length_mm is not None:
+        import tempfile
+
+        target = dataclasses.replace(CALIBRATION_TARGET, block_length_m=args.block_length_mm / 1e3)
+        mesh = Path(tempfile.mkdtemp(prefix="plantsim-target-")) / "target.stl"
+        mesh.write_bytes(target_stl_bytes(target))
+        plant = PlantOptions(mesh=str(mesh), placement="none")
     nominal = RigGeometry()
     errors = {k: [] for k in PARAMETERS}
     sigmas = {k: [] for k in PARAMETERS}
@@ -71,12 +85,13 @@ def main() -> None:
         bias = float(rng.uniform(-1, 1) * BIAS_SPREAD_M) if args.sensor == "realistic" else 0.0
         told = bias + float(rng.uniform(-1, 1) * BIAS_KNOWN_TO_M) if args.sensor == "realistic" else 0.0
         T = ((1.0, 0.0, 0.0, shift[0]), (0.0, 1.0, 0.0, shift[1]), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
-        config = RunConfig(plant=PlantOptions(bundled="calibration-target", T_turntable_mesh=T), rig=truth,
+        config = RunConfig(plant=dataclasses.replace(plant, T_turntable_mesh=T), rig=truth,
                            lidar=dataclasses.replace(PRESETS["urg-04lx-ug01"], range_bias_m=bias),
                            sensor=args.sensor, seed=trial, scan=StepScan(step_deg=args.step_deg))
         raw = run_scan(config).raw
         t_fit = time.perf_counter()
-        fit = calibrate(raw, nominal=nominal, range_offset_m=None if args.fit_range_offset else told,
+        fit = calibrate(raw, nominal=nominal, target=target, range_offset_m=None if args.fit_range_offset else told,
+                        model_std=None if args.no_model_std else MODEL_STD,
                         range_offset_std_m=BIAS_KNOWN_TO_M / math.sqrt(3) if args.sensor == "realistic" else 0.0)
         t_fit = time.perf_counter() - t_fit
         err = {k: getattr(fit.rig, k) - getattr(truth, k) for k in PARAMETERS}
