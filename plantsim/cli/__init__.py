@@ -4,6 +4,15 @@ import os as _os
 import sys as _sys
 
 
+def command_of(args: list[str]) -> str | None:
+    """The command named on a command line (the first word that is not an option), or None.
+
+    Args:
+      args: the arguments after the program's name.
+    """
+    return next((arg for arg in args if not arg.startswith("-")), None)
+
+
 def _single_threaded_blas_for_a_scan(argv: list[str]) -> None:
     """One OpenBLAS thread for a ``plantsim scan`` process, unless the user chose otherwise.
 
@@ -13,8 +22,7 @@ def _single_threaded_blas_for_a_scan(argv: list[str]) -> None:
     precede numpy's import, so it is made here, before the command line module loads;
     a user's own ``OPENBLAS_NUM_THREADS`` is left as it is.
     """
-    command = next((arg for arg in argv[1:] if not arg.startswith("-")), None)
-    if command == "scan" and "numpy" not in _sys.modules:
+    if command_of(argv[1:]) == "scan" and "numpy" not in _sys.modules:
         _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 

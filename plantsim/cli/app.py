@@ -361,11 +361,6 @@ def build_parser(*, only_scan: bool = False) -> argparse.ArgumentParser:
     return parser
 
 
-def _command_of(argv: list[str]) -> str | None:
-    """The command named on a command line (the first word that is not an option), or None."""
-    return next((arg for arg in argv if not arg.startswith("-")), None)
-
-
 def _lean_scan_process(*, draws: bool = False) -> None:
     """Keeps a scan's process from loading what a scan never uses (the command line only).
 
@@ -387,7 +382,9 @@ def main(argv: list[str] | None = None) -> int:
     """Runs a command line (``argv``, default the process's own: ``plantsim ...``)."""
     own_process = argv is None
     argv = sys.argv[1:] if own_process else list(argv)
-    scan_only = _command_of(argv) == "scan"
+    from plantsim.cli import command_of
+
+    scan_only = command_of(argv) == "scan"
     parser = build_parser(only_scan=scan_only)
     args = parser.parse_args(argv)
     if scan_only and own_process:  # a caller's process (tests, scripts) is left as it is

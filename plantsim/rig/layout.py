@@ -198,8 +198,8 @@ def _read_body(element: ET.Element, name: str, groups: dict, *, turns: bool) -> 
         if child.tag not in _BODY_CHILDREN:
             raise LayoutError(f"body {name!r}: <{child.tag}> is not read without MuJoCo")
         if child.tag == "joint":
-            if child.get("type", "hinge") != "hinge" or _floats(child.get("axis"), 3, "joint axis") is None \
-                    or not np.allclose(_floats(child.get("axis"), 3, "joint axis"), [0, 0, 1]) \
+            axis = _floats(child.get("axis"), 3, "joint axis")
+            if child.get("type", "hinge") != "hinge" or axis is None or not np.allclose(axis, [0, 0, 1]) \
                     or child.get("pos") not in (None, "0 0 0") or name != "turntable":
                 raise LayoutError(f"body {name!r}: only the turntable's hinge about +Z is read without MuJoCo")
             node.turns = True
@@ -227,7 +227,7 @@ def _read_body(element: ET.Element, name: str, groups: dict, *, turns: bool) -> 
 
 
 @functools.lru_cache(maxsize=4)
-def _read_rig_file(path: str) -> tuple[dict, _Node]:
+def _read_rig_file(path: str) -> _Node:
     root = ET.parse(path).getroot()
     compiler = root.find("compiler")
     if compiler is None or compiler.get("angle") != "radian":
@@ -235,7 +235,7 @@ def _read_rig_file(path: str) -> tuple[dict, _Node]:
     worldbody = root.find("worldbody")
     if worldbody is None:
         raise LayoutError(f"{path}: no <worldbody>")
-    return _read_defaults(root), _read_body(worldbody, "world", _read_defaults(root), turns=False)
+    return _read_body(worldbody, "world", _read_defaults(root), turns=False)
 
 
 def rig_file() -> Path:
@@ -261,7 +261,7 @@ def rig_layout(rig: RigGeometry, *, with_plant: bool) -> RigLayout:
     Raises:
       LayoutError: the rig file uses MJCF this reader does not handle.
     """
-    _, world = _read_rig_file(str(rig_file()))
+    world = _read_rig_file(str(rig_file()))
     placement = rig_placement(rig, rig.T_base_lidar())
     set_geoms = placement["geoms"]
     found = set()

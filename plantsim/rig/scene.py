@@ -22,8 +22,7 @@ from plantsim.errors import SceneError
 from plantsim.plant.mesh import PlantMesh, shell_inertia
 from plantsim.resources import data_path
 from plantsim.rig.geometry import RigGeometry
-from plantsim.rig.layout import (BENCH_HALF_THICKNESS_M, N_GROUPS, LayoutError, RigLayout, rig_layout,
-                                 rig_placement)
+from plantsim.rig.layout import N_GROUPS, LayoutError, RigLayout, rig_layout, rig_placement
 
 if TYPE_CHECKING:
     import mujoco
@@ -43,7 +42,6 @@ class HitClass(enum.IntEnum):
 # Geom group -> what a hit on it is. Group 3 (the sensor's own body) is never cast.
 GROUP_CLASS = {0: HitClass.RIG, 1: HitClass.TURNTABLE, 2: HitClass.PLANT}
 LIDAR_GEOMGROUP = np.array([1 if g in GROUP_CLASS else 0 for g in range(N_GROUPS)], dtype=np.uint8)
-_BENCH_HALF_THICKNESS_M = BENCH_HALF_THICKNESS_M
 
 
 class Scene:

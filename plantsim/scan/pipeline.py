@@ -106,12 +106,11 @@ def library_versions() -> dict:
     import sys
 
     from plantsim import __version__
+    from plantsim._lazy import is_loaded
 
     versions: dict = {"plantsim": __version__, "python": platform.python_version()}
     not_loaded = []
     for name in ("mujoco", "numpy", "scipy", "trimesh", "laspy", "rosbags", "embreex"):
-        from plantsim._lazy import is_loaded
-
         module = sys.modules.get(name)
         if module is None or not is_loaded(name):
             not_loaded.append(name)

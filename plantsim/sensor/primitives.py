@@ -124,16 +124,21 @@ def _plane(size, lp, lv):
 _CAST = {"box": _box, "cylinder": _cylinder, "sphere": _sphere, "plane": _plane}
 
 
-def bounding_radius(geom: Geom) -> float:
-    """MuJoCo's geom_rbound for a primitive (inf for a plane)."""
+def _bounding_radius_sq(geom: Geom) -> float:
+    """The squared radius of the sphere MuJoCo tests a box or cylinder against (inf for a plane)."""
     s = geom.size
     if geom.type == "box":
-        return float(np.linalg.norm(s))
+        return float(s[0] ** 2 + s[1] ** 2 + s[2] ** 2)
     if geom.type == "cylinder":
-        return float(np.hypot(s[0], s[1]))
+        return float(s[0] ** 2 + s[1] ** 2)
     if geom.type == "sphere":
-        return float(s[0])
+        return float(s[0] ** 2)
     return float("inf")
+
+
+def bounding_radius(geom: Geom) -> float:
+    """MuJoCo's geom_rbound for a primitive (inf for a plane)."""
+    return float(np.sqrt(_bounding_radius_sq(geom)))
 
 
 def local_half_extents(geom: Geom) -> np.ndarray:
@@ -161,10 +166,7 @@ def cast_geom(geom: Geom, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.nda
     dist = np.full(n, -1.0)
     normal = np.zeros((n, 3))
     if geom.type in ("box", "cylinder"):
-        rows = np.flatnonzero(_in_bounding_sphere(geom.pos_base, float(np.sum(geom.size[:3] ** 2)
-                                                                       if geom.type == "box" else
-                                                                       geom.size[0] ** 2 + geom.size[1] ** 2),
-                                                  origins, dirs))
+        rows = np.flatnonzero(_in_bounding_sphere(geom.pos_base, _bounding_radius_sq(geom), origins, dirs))
     else:
         rows = np.arange(n)
     if not len(rows):
