@@ -165,7 +165,7 @@ def _plane(size=1.0, n=20, vertical=False):
 
 def test_chamfer_of_identical_sets_is_zero():
     v, f = _plane()
-    cloud, _ = metrics.sample_surface(v, f, 50_000, rng=5)
+    cloud, _ = metrics.sample_surface(v, f, 50_000, rng=5, by_triangle=True)
     m = metrics.cloud_mesh_metrics(cloud, v, f, n_surface_samples=50_000, rng=5)
     assert m.chamfer < 1e-12
     assert m.coverage == 1.0
@@ -238,6 +238,27 @@ def test_sample_surface_is_deterministic_and_area_weighted():
     b, tb = metrics.sample_surface(v, f, 1000, rng=11)
     assert np.array_equal(a, b) and np.array_equal(ta, tb)
     assert np.all((a[:, :2] >= 0) & (a[:, :2] <= 1))
+
+
+@pytest.mark.parametrize("by_triangle", [False, True])
+def test_samples_fall_by_area_and_uniformly_inside_each_triangle(by_triangle):
+    # Areas 0.5, 1.5 (three times as large) and 0 (degenerate): 1/4, 3/4, none.
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 1], [5, 0, 1], [2, 1, 1],
+                  [0, 0, 2], [1, 0, 2], [2, 0, 2]], dtype=float)
+    f = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    n = 40_000
+    pts, tri = metrics.sample_surface(v, f, n, rng=4, by_triangle=by_triangle)
+    counts = np.bincount(tri, minlength=3)
+    assert counts[2] == 0
+    sigma = np.sqrt(n * 0.25 * 0.75)
+    assert abs(counts[0] - n / 4) < 5 * sigma and abs(counts[1] - 3 * n / 4) < 5 * sigma
+    # On their triangle, and uniform inside it: the mean is the centroid
+    # (standard error about 0.3 / sqrt(count) of the triangle's size).
+    assert metrics.point_to_mesh_distance(pts, v, f).distance.max() < 1e-12
+    for t in (0, 1):
+        mean = pts[tri == t].mean(axis=0)
+        np.testing.assert_allclose(mean, v[f[t]].mean(axis=0), atol=5 * 1.5 / np.sqrt(counts[t]))
+    assert np.all(np.diff(tri) >= 0) if by_triangle else np.any(np.diff(tri) < 0)
 
 
 def test_validation_errors_say_what_arrived(sphere):

@@ -121,16 +121,18 @@ def estimate_scale(points: np.ndarray, *, max_samples: int = 20_000, seed: int =
     # Regions near the axis are seen on every turn and are far denser than the rest;
     # connectivity is set by the sparse regions, so the 90th percentile is used.
     spacing = float(np.percentile(d[:, 16], 90) * math.sqrt(math.pi / 16.0))
-    noise = _noise_multiscale(pts, 3.0 * spacing, rng=rng, workers=workers)
+    noise = _noise_multiscale(pts, 3.0 * spacing, rng=rng, workers=workers, tree=tree)
     return CloudScale(spacing_m=spacing, noise_m=noise, voxel_m=max(2.0 * spacing, 1.5 * noise))
 
 
 def _noise_multiscale(pts: np.ndarray, r_min: float, *, rng: np.random.Generator, workers: int,
-                      n_centres: int = 300, k: int = 256, sub: int = 5_000) -> float:
+                      n_centres: int = 300, k: int = 256, sub: int = 5_000,
+                      tree: cKDTree | None = None) -> float:
     """RMS plane-fit residual at the most surface-like scale (estimate_scale's noise).
 
     Two ladders: small radii on the whole cloud, large radii on a subsample (which
     reaches farther with the same ``k``; second moments do not depend on density).
+    ``tree``: a k-d tree of ``pts`` already built (else one is built).
     """
     best = (math.inf, 0.0)
     clouds = [pts]
@@ -139,7 +141,8 @@ def _noise_multiscale(pts: np.ndarray, r_min: float, *, rng: np.random.Generator
     for cloud in clouds:
         kk = min(k, len(cloud))
         centres = cloud[rng.choice(len(cloud), size=min(n_centres, len(cloud)), replace=False)]
-        dist, nn = cKDTree(cloud).query(centres, k=kk, workers=workers)
+        cloud_tree = tree if cloud is pts and tree is not None else cKDTree(cloud)
+        dist, nn = cloud_tree.query(centres, k=kk, workers=workers)
         nb = cloud[nn]
         # Below a few spacings a ball holds one or two scan lines: no plane to fit.
         lo = max(r_min, float(np.median(dist[:, 15])), 1e-9)
@@ -151,9 +154,11 @@ def _noise_multiscale(pts: np.ndarray, r_min: float, *, rng: np.random.Generator
             if ok.sum() < 20:
                 continue
             wk, q, c = w[ok], nb[ok], count[ok][:, None]
-            mean = np.einsum("nk,nki->ni", wk, q) / c
+            # Weighted means and covariances as batched matrix products (BLAS;
+            # the same sums as einsum's "nk,nki,nkj->nij", 2.5x faster).
+            mean = np.matmul(wk[:, None, :], q)[:, 0] / c
             q = q - mean[:, None, :]
-            cov = np.einsum("nk,nki,nkj->nij", wk, q, q) / c[..., None]
+            cov = np.matmul((q * wk[..., None]).transpose(0, 2, 1), q) / c[..., None]
             ev = np.linalg.eigvalsh(cov)
             ratio = float(np.median(ev[:, 0] / np.maximum(ev[:, 1], 1e-30)))
             if ratio < best[0]:
