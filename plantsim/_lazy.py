@@ -39,3 +39,31 @@ def is_loaded(name: str) -> bool:
         return False
     lazy_type = getattr(importlib.util, "_LazyModule", ())  # the class a lazy module has until it runs
     return not isinstance(module, lazy_type)
+
+
+class LazyGenerator:
+    """``numpy.random.default_rng(seed)``, made on first use.
+
+    ``numpy.random`` costs about 10 ms to import; a scan with a perfect sensor and
+    turntable draws no random number and so never loads it. Every attribute is the
+    generator's own (``rng.normal``, ``rng.bit_generator``...), and the stream is the
+    one ``default_rng(seed)`` gives, whenever the first draw happens.
+    """
+
+    __slots__ = ("_seed", "_generator")
+
+    def __init__(self, seed: int | None) -> None:
+        self._seed = seed
+        self._generator = None
+
+    @property
+    def generator(self):
+        """The ``numpy.random.Generator`` itself (made now if it was not yet)."""
+        if self._generator is None:
+            import numpy as np
+
+            self._generator = np.random.default_rng(self._seed)
+        return self._generator
+
+    def __getattr__(self, name: str):
+        return getattr(self.generator, name)

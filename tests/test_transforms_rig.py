@@ -88,3 +88,17 @@ def test_custom_lidar_without_encoder_spreads_beams_over_the_fov():
     lidar = LidarSpec(n_beams=5, angle_min_deg=-90, angle_increment_deg=45, range_min_m=0.1,
                       range_max_m=10, scan_period_s=0.04)
     np.testing.assert_allclose(lidar.beam_time_offsets_s(), np.arange(5) * 0.125 * 0.04)
+
+
+def test_base_to_turntable_undoes_the_turn_point_by_point():
+    from plantsim.cloud.reconstruct import base_to_turntable
+    from plantsim.transforms import rot_z_batch
+
+    # A point on +x seen with the table turned 90 degrees counter-clockwise sits on -y of the table.
+    got = base_to_turntable(np.array([[1.0, 0.0, 0.5], [0.0, 2.0, -1.0]]), np.array([math.pi / 2, math.pi]))
+    np.testing.assert_allclose(got, [[0.0, -1.0, 0.5], [0.0, -2.0, -1.0]], atol=1e-15)
+    rng = np.random.default_rng(0)
+    pts, theta = rng.normal(size=(50, 3)), rng.uniform(-7, 7, 50)
+    np.testing.assert_array_equal(base_to_turntable(pts, theta),
+                                  np.einsum("nij,nj->ni", rot_z_batch(-theta), pts))
+    np.testing.assert_allclose(base_to_turntable(pts, 0.3), pts @ rot_z(-0.3).T, atol=1e-15)

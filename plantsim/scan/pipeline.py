@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from plantsim._lazy import LazyGenerator
 from plantsim.cloud.reconstruct import PointCloud, reconstruct
 from plantsim.plant.mesh import PlantMesh, load_plant
 from plantsim.resources import bundled_plant_path
@@ -260,7 +261,7 @@ def run_scan(config: RunConfig, *, plant: PlantMesh | None = None, turntable: "T
     t = time.perf_counter()
     journal_path, lines_resumed, diagnostics = None, 0, {}
     if turntable is None:
-        rng = np.random.default_rng(config.seed)
+        rng = LazyGenerator(config.seed)  # a perfect sensor and turntable draw nothing
         record = _motion(config, plan, dscene, grid, rng)
         timings["turntable"] = time.perf_counter() - t
         t = time.perf_counter()
