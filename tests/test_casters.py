@@ -178,6 +178,33 @@ def test_embree_threads_give_the_hits_of_one_thread():
     np.testing.assert_array_equal(a.normal_base, b.normal_base)
 
 
+@pytest.mark.parametrize("normals", [False, True])
+def test_chunks_cast_side_by_side_give_the_hits_and_counts_of_one_thread(normals):
+    """A Caster on a backend that allows concurrent calls casts whole chunks on several
+    threads: every hit, normal and counter is what one thread gives."""
+    plant = load_plant(bundled_plant_path("maize"))
+    scene = build_scene(RigGeometry(), plant)  # never compiled: primitives analytic
+    sources = {n: SimulatedLidar(scene, URG_04LX_UG01, ANGLES, backend=embree.EmbreeBackend(scene, nthread=n))
+               for n in (1, 3)}
+    assert sources[3].caster.backend.concurrent_calls and sources[3].caster._chunk_pool() is not None
+    assert sources[1].caster._chunk_pool() is None
+    ids = np.broadcast_to(np.arange(len(ANGLES)), (37, len(ANGLES)))
+    theta = np.radians(np.arange(37) * 9.7)
+    got = {n: s.caster.cast(ids, theta, normals=normals, chunk_lines=5) for n, s in sources.items()}
+    seen = []
+    sources[3].caster.cast(ids, theta, chunk_lines=5, progress=lambda done, total: seen.append((done, total)))
+    assert seen == [(min(hi, 37), 37) for hi in range(5, 41, 5)]
+    assert (got[1].geom_id >= 0).sum() > 1000
+    np.testing.assert_array_equal(got[1].dist_m, got[3].dist_m)
+    np.testing.assert_array_equal(got[1].geom_id, got[3].geom_id)
+    if normals:
+        np.testing.assert_array_equal(got[1].normal_base, got[3].normal_base)
+    one, many = sources[1].caster, sources[3].caster  # many cast the lines twice
+    assert one.n_rays_cast == 37 * len(ANGLES) and one.n_rays_culled > 0
+    assert (many.n_rays_cast, many.n_rays_culled) == (2 * one.n_rays_cast, 2 * one.n_rays_culled)
+    assert many.cast_turning_s > 0
+
+
 def test_row_gather_and_scatter_are_fancy_indexing():
     rng = np.random.default_rng(2)
     table = rng.normal(size=(50, 3))

@@ -195,10 +195,13 @@ class EmbreeBackend:
             return Hits(*cast_geoms(self._fixed_prims, origins, dirs, normals=normals))
         return self._full_ids(self._mujoco.cast_fixed(origins, dirs, normals=normals))
 
-    def _run_embree(self, origins32: np.ndarray, dirs32: np.ndarray):
-        """Starts Embree on (N, 3) float32 rays; returns a function giving the (N,) primIDs (-1: miss)."""
+    def _run_embree(self, origins32: np.ndarray, dirs32: np.ndarray, split: bool = True):
+        """Starts Embree on (N, 3) float32 rays; returns a function giving the (N,) primIDs (-1: miss).
+
+        ``split``: spread the rays over this backend's threads (else cast on the calling one).
+        """
         n = len(origins32)
-        blocks = min(self.nthread, n // self.MIN_RAYS_PER_THREAD)
+        blocks = min(self.nthread, n // self.MIN_RAYS_PER_THREAD) if split else 1
         if blocks < 2:
             found = self._embree.run(origins32, dirs32)
             return lambda: found
@@ -227,17 +230,25 @@ class EmbreeBackend:
                 put_rows(normal, sub, hits.normal_base)
         return Hits(dist, geom, normal)
 
-    def cast_turning(self, origins, dirs, *, normals=False, reach_primitives=None) -> Hits:
+    @property
+    def concurrent_calls(self) -> bool:
+        """Whether :meth:`cast_turning` may run on several threads at once: yes when the
+        turning primitives are cast analytically (numpy and Embree, no shared MuJoCo data)."""
+        return self._turning_prims is not None
+
+    def cast_turning(self, origins, dirs, *, normals=False, reach_primitives=None, split=True) -> Hits:
         """Casts (N, 3) rays, turntable frame, against the turning geoms with the hinge at 0.
 
         ``reach_primitives``: (N,) bool, False where the ray surely misses the cylinder
         :attr:`primitive_bounds` (MuJoCo then casts only the others); None: cast all.
+        ``split``: spread Embree's rays over the backend's threads (False: cast on the
+        calling thread, for a caller that already casts chunks side by side).
         """
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
         if self._embree is None or not len(origins):
             return self._cast_primitives(origins, dirs, normals, reach_primitives)
-        embree_result = self._run_embree(origins.astype(np.float32), dirs.astype(np.float32))
+        embree_result = self._run_embree(origins.astype(np.float32), dirs.astype(np.float32), split)
         # MuJoCo on the turning primitives while Embree's threads traverse the mesh.
         prim = self._cast_primitives(origins, dirs, normals, reach_primitives)
         found = embree_result()  # primID, -1: miss
