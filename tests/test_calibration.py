@@ -82,7 +82,8 @@ def test_ray_hit_names_the_face_it_hits():
     origins = np.array([[0.3, 0.0, 0.05], [0.0, 0.03, 0.25], [0.3, 0.0, -0.001], [-0.04, 0.0, 0.5]])
     dirs = np.array([[-1.0, 0, 0], [0, 0, -1.0], [-1.0, 0, 0], [0, 0, -1.0]])
     t, surface = ray_hit(CALIBRATION_TARGET, origins, dirs, disk_radius_m=0.1)
-    np.testing.assert_allclose(t, [0.3 - 0.075, 0.25 - 0.1, 0.3 - 0.1, 0.5 - 0.1], atol=1e-12)
+    half_length = CALIBRATION_TARGET.block_length_m / 2  # 95 mm
+    np.testing.assert_allclose(t, [0.3 - half_length, 0.25 - 0.1, 0.3 - 0.1, 0.5 - 0.1], atol=1e-12)
     block_plus_x, block_top, disk_side = 0 * 8 + 1, 0 * 8 + 5, 2 * 8 + 0
     assert surface[[0, 1, 2]].tolist() == [block_plus_x, block_top, disk_side]
     # Straight down onto the post at (0.04, 0, z): its top cap (part 1, face 2).
@@ -92,7 +93,7 @@ def test_ray_hit_names_the_face_it_hits():
 
 def test_a_target_that_cannot_be_built_is_refused():
     with pytest.raises(ValueError, match="must stand on the block's top"):
-        CalibrationTarget(post_offset_m=0.06)
+        CalibrationTarget(post_offset_m=0.08)  # 80 + 20 mm past the 95 mm half-length
     with pytest.raises(ValueError, match="block_width_m must be a finite number of metres > 0"):
         CalibrationTarget(block_width_m=-0.08)
 
@@ -229,12 +230,14 @@ def test_too_few_lines_are_refused():
 def test_the_stated_uncertainty_adds_the_sensors_systematic_share(ideal_raw):
     from plantsim.cloud.calibration import MODEL_STD
 
-    told = calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000)  # range offset told: not fitted
-    bare = calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000, model_std=None)
-    assert bare.std == bare.std_fit == told.std_fit
+    default = calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000)  # range offset told: not fitted
+    assert dict(MODEL_STD) == {} and default.std == default.std_fit  # the shipped target needs none
+    share = {"tilt_deg": 0.03, "encoder_offset_deg": 0.05}
+    told = calibrate(ideal_raw, nominal=RigGeometry(), max_points=6000, model_std=share)
+    assert told.std_fit == default.std_fit
     for name in PARAMETERS:
-        assert told.std[name] == pytest.approx(np.hypot(told.std_fit[name], MODEL_STD.get(name, 0.0)), rel=1e-12)
+        assert told.std[name] == pytest.approx(np.hypot(told.std_fit[name], share.get(name, 0.0)), rel=1e-12)
     assert told.std["range_offset_m"] == told.std_fit["range_offset_m"] == 0.0  # told, so not fitted
-    assert told.std["encoder_offset_deg"] >= MODEL_STD["encoder_offset_deg"]
+    assert told.std["encoder_offset_deg"] >= 0.05
     with pytest.raises(ValueError, match="model_std names no calibration parameter: \\['yaw'\\]"):
         calibrate(ideal_raw, max_points=6000, model_std={"yaw": 0.1})

@@ -6,9 +6,10 @@ Set on the turntable disk (turntable frame: origin on the axis at the disk top,
 =========  ==============================================================================
 part       what and where (millimetres)
 =========  ==============================================================================
-block      a rectangular block 150 long (X), 110 wide (Y), 100 tall (Z), standing on the
-           disk, its centre on the turntable axis, its long side along X: x -75..75,
-           y -55..55, z 0..100 (sawn from timber, or glued from 18 mm MDF sheets)
+block      a rectangular block 190 long (X), 110 wide (Y), 100 tall (Z), standing on the
+           disk, its centre on the turntable axis, its long side along X: x -95..95,
+           y -55..55, z 0..100 (sawn from timber, or glued from 18 mm MDF sheets); its
+           ends stay 5 mm inside the 100 mm disk's rim
 post       a cylinder of radius 20, 200 tall, standing on the block's top on its long
            centre line, 40 from the block's centre towards +X: centre (40, 0), z 100..300
            (a 40 mm dowel, glued into a shallow 40 mm hole or onto the top)
@@ -26,8 +27,10 @@ and ``docs/calibration.md``): a round part centred on the axis looks the same fr
 every side, and a scan plane that misses the axis by ``e`` (yaw) changes its range
 only by about ``e^2 / 2r``; the block's flat faces change range by ``e tan(psi)``
 (psi the face's angle to the beam), first order, and its faces at two distances
-from the axis (75 and 55 mm) tell that lateral offset from a turn of the table
-(the encoder's zero). The post off the axis breaks the block's half-turn symmetry
+from the axis (95 and 55 mm) tell that lateral offset from a turn of the table
+(the encoder's zero): the longer the block, the further its end faces from the axis and the
+better they pin the zero (190 mm: 0.08 degrees, one sigma, at 0.25-degree steps; a block
+past the disk's rim biases the height and tilt, docs/calibration.md). The post off the axis breaks the block's half-turn symmetry
 so that the zero is unique, and with its 200 mm of height spanning the LiDAR's
 horizon fixes the fan's tilt; the block's top and the disk's top, two horizontal
 surfaces at different depths below the LiDAR, fix its height and roll.
@@ -51,7 +54,7 @@ class CalibrationTarget:
       sections: facets around the post in the mesh.
     """
 
-    block_length_m: float = 0.150
+    block_length_m: float = 0.190
     block_width_m: float = 0.110
     block_height_m: float = 0.100
     post_radius_m: float = 0.020
