@@ -42,6 +42,8 @@ from typing import Any, Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from plantsim.evaluation.knn import NeighbourIndex
+
 logger = logging.getLogger(__name__)
 
 # Point-triangle pairs evaluated at once: bounds the temporaries of the exact
@@ -696,7 +698,7 @@ def _progress_chunk(n: int, progress) -> int:
     return 50_000 if progress is None else max(10_000, -(-n // 50))
 
 
-def _nearest_distance(tree: cKDTree, queries: np.ndarray, workers: int, progress, done: int,
+def _nearest_distance(tree: NeighbourIndex, queries: np.ndarray, workers: int, progress, done: int,
                       total: int) -> np.ndarray:
     """Distance of each query point to its nearest point of ``tree``, in chunks when
     ``progress`` is given (reported as ``done + queries so far`` of ``total``)."""
@@ -872,7 +874,7 @@ def cloud_mesh_metrics(
                    chunk_size=_progress_chunk(pts.shape[0], progress)).distance
 
     samples, _, area = _sample_surface(v, f, int(n_surface_samples), _rng(rng), by_triangle=True)
-    d_back = _nearest_distance(cKDTree(pts), samples, workers, progress, pts.shape[0], n_total)
+    d_back = _nearest_distance(NeighbourIndex(pts), samples, workers, progress, pts.shape[0], n_total)
     covered = d_back <= coverage_distance
     cov = float(covered.mean())
     ns = samples.shape[0]

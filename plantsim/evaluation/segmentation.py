@@ -56,6 +56,8 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
+from plantsim.evaluation.knn import NeighbourIndex
+
 logger = logging.getLogger(__name__)
 
 
@@ -112,7 +114,7 @@ def estimate_scale(points: np.ndarray, *, max_samples: int = 20_000, seed: int =
     if len(pts) < 17:
         raise ValueError(f"estimating the point spacing needs at least 17 points, got {len(pts)}")
     rng = np.random.default_rng(seed)
-    tree = cKDTree(pts)
+    tree = NeighbourIndex(pts)
     idx = rng.choice(len(pts), size=min(max_samples, len(pts)), replace=False)
     # Scan lines pack points far closer along a line than between lines, so the
     # nearest neighbour understates the spacing: take the radius r16 holding 16
@@ -127,7 +129,7 @@ def estimate_scale(points: np.ndarray, *, max_samples: int = 20_000, seed: int =
 
 def _noise_multiscale(pts: np.ndarray, r_min: float, *, rng: np.random.Generator, workers: int,
                       n_centres: int = 300, k: int = 256, sub: int = 5_000,
-                      tree: cKDTree | None = None) -> float:
+                      tree: NeighbourIndex | None = None) -> float:
     """RMS plane-fit residual at the most surface-like scale (estimate_scale's noise).
 
     Two ladders: small radii on the whole cloud, large radii on a subsample (which
@@ -141,7 +143,7 @@ def _noise_multiscale(pts: np.ndarray, r_min: float, *, rng: np.random.Generator
     for cloud in clouds:
         kk = min(k, len(cloud))
         centres = cloud[rng.choice(len(cloud), size=min(n_centres, len(cloud)), replace=False)]
-        cloud_tree = tree if cloud is pts and tree is not None else cKDTree(cloud)
+        cloud_tree = tree if cloud is pts and tree is not None else NeighbourIndex(cloud)
         dist, nn = cloud_tree.query(centres, k=kk, workers=workers)
         nb = cloud[nn]
         # Below a few spacings a ball holds one or two scan lines: no plane to fit.
@@ -184,7 +186,7 @@ def outlier_mask(points: np.ndarray, *, k: int = 8, n_sigma: float = 3.0,
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) <= k:
         return np.ones(len(pts), dtype=bool)
-    d, _ = cKDTree(pts).query(pts, k=k + 1, workers=workers)
+    d, _ = NeighbourIndex(pts).query(pts, k=k + 1, workers=workers)
     mean = d[:, 1:].mean(axis=1)
     return mean <= mean.mean() + n_sigma * mean.std()
 
