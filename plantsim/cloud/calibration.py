@@ -354,10 +354,10 @@ def calibrate(raw: RawScan, *, nominal: RigGeometry = RigGeometry(), target: Cal
     # answer). On the study's rigs the first final round alone left the encoder's zero up to
     # 0.43 degrees off where the fixed point is within 0.2 (docs/calibration.md).
     final_margin = max(math.radians(0.75), 2 * step_rad)
-    rounds = [(math.radians(3.0), 6000), (math.radians(1.5), 20000)] + [(final_margin, max_points)] * _MAX_FINAL_ROUNDS
+    rounds = ([(math.radians(3.0), 6000, False), (math.radians(1.5), 20000, False)]
+              + [(final_margin, max_points, True)] * _MAX_FINAL_ROUNDS)
     previous = None
-    for round_index, (margin_rad, n_use) in enumerate(rounds):
-        final = margin_rad == final_margin and n_use == max_points
+    for round_index, (margin_rad, n_use, final) in enumerate(rounds):
         inside = _interior(beams, nominal, target, x, margin_rad)
         if inside.sum() < 200:
             raise ValueError(f"only {int(inside.sum())} returns fall on the calibration target's surfaces; scan "
