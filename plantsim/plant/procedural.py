@@ -707,6 +707,47 @@ def _leaf_rank_angles(p: Any, q: float, u_angle: float, u_droop: float,
 # ---------------------------------------------------------------------------- plants
 
 
+@dataclasses.dataclass(frozen=True)
+class _MainStem:
+    """The one leaning, tapering main stem of a maize or a dicot (its mesh already built).
+
+    Attributes:
+        length, lean, lean_azimuth: the stem's arc (metres, radians).
+        first_azimuth: the azimuth of the first leaf, radians.
+        r_base, r_top: radius at the base and the top, metres.
+        truth: the plant's ``stems`` truth record (one stem).
+    """
+
+    length: float
+    lean: float
+    lean_azimuth: float
+    first_azimuth: float
+    r_base: float
+    r_top: float
+    truth: list
+
+    def node(self, fraction: float) -> tuple[np.ndarray, float]:
+        """The axis point (3,) and the stem's radius at ``fraction`` of its length."""
+        axis, _ = _arc_axis(np.array([self.length * fraction]), self.length, self.lean, self.lean_azimuth)
+        return axis[0], self.r_base + (self.r_top - self.r_base) * fraction
+
+
+def _main_stem(builder: "_Builder", p: Any, rng: np.random.Generator) -> _MainStem:
+    """Draws the stem's lean and the first leaf's azimuth (three numbers from ``rng``, in that
+    order), adds the stem's mesh to ``builder`` and returns it (``p``: the plant's
+    parameters with ``stem_length``, ``stem_lean_deg``, diameters, sides and rings)."""
+    lean = math.radians(p.stem_lean_deg) * rng.uniform()
+    lean_azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    first_azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    r_base, r_top = 0.5 * p.stem_diameter, 0.5 * p.stem_top_diameter
+    stem_vertices, stem_faces, top = _stem(np.zeros(2), p.stem_length, lean, lean_azimuth,
+                                           r_base, r_top, p.stem_sides, p.stem_rings)
+    builder.add(stem_vertices, stem_faces, PART_STEM, 0)
+    truth = [{"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 2.0 * r_base,
+              "height_m": float(top[2]), "top_xyz_m": [float(c) for c in top]}]
+    return _MainStem(p.stem_length, lean, lean_azimuth, first_azimuth, r_base, r_top, truth)
+
+
 def make_maize(*, seed: int = 0, **params: Any) -> ProceduralPlant:
     """Generates a young maize plant: one tapering stem with distichous strap leaves.
 
@@ -723,20 +764,11 @@ def make_maize(*, seed: int = 0, **params: Any) -> ProceduralPlant:
     seed = _check_seed(seed)
     p: MaizeParams = _make_params(MaizeParams, params)
     rng = np.random.default_rng(seed)
-    lean = math.radians(p.stem_lean_deg) * rng.uniform()
-    lean_azimuth = rng.uniform(0.0, 2.0 * np.pi)
-    first_azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    builder = _Builder()
+    stem = _main_stem(builder, p, rng)
     n = p.n_leaves
     u = rng.uniform(-1.0, 1.0, size=(7, n))
     wave_phase = rng.uniform(0.0, 2.0 * np.pi, size=(n, 2))
-
-    builder = _Builder()
-    r_base, r_top = 0.5 * p.stem_diameter, 0.5 * p.stem_top_diameter
-    stem_vertices, stem_faces, top = _stem(np.zeros(2), p.stem_length, lean, lean_azimuth,
-                                           r_base, r_top, p.stem_sides, p.stem_rings)
-    builder.add(stem_vertices, stem_faces, PART_STEM, 0)
-    stems = [{"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 2.0 * r_base,
-              "height_m": float(top[2]), "top_xyz_m": [float(c) for c in top]}]
 
     leaves = []
     for k in range(n):
@@ -745,12 +777,10 @@ def make_maize(*, seed: int = 0, **params: Any) -> ProceduralPlant:
         length_factor = 0.45 + 0.55 * math.exp(-((q - 0.6) / 0.35) ** 2)
         width_factor = 0.42 + 0.58 * math.exp(-((q - 0.6) / 0.4) ** 2)
         fraction = p.lowest_leaf_fraction + (p.highest_leaf_fraction - p.lowest_leaf_fraction) * q ** 1.5
-        s_insert = p.stem_length * fraction
-        axis, _ = _arc_axis(np.array([s_insert]), p.stem_length, lean, lean_azimuth)
-        azimuth = (first_azimuth + k * math.radians(p.phyllotaxy_deg)
+        node, r_here = stem.node(fraction)
+        azimuth = (stem.first_azimuth + k * math.radians(p.phyllotaxy_deg)
                    + math.radians(p.phyllotaxy_jitter_deg) * u[0, k])
-        r_here = r_base + (r_top - r_base) * fraction
-        base = axis[0] + _COLLAR_INSET * r_here * np.array([math.cos(azimuth), math.sin(azimuth), 0.0])
+        base = node + _COLLAR_INSET * r_here * np.array([math.cos(azimuth), math.sin(azimuth), 0.0])
         theta0, droop = _leaf_rank_angles(p, q, u[1, k], u[2, k], erect=0.6, arch=0.55)
         shape = _LeafShape(
             base=base, azimuth=azimuth,
@@ -766,7 +796,7 @@ def make_maize(*, seed: int = 0, **params: Any) -> ProceduralPlant:
         vertices, faces = _grounded_leaf(shape, k)
         builder.add(vertices, faces, PART_LEAF, k)
         leaves.append(_leaf_traits(k, 0, vertices, faces, shape))
-    return _finish("maize", seed, p, builder, stems, leaves)
+    return _finish("maize", seed, p, builder, stem.truth, leaves)
 
 
 def make_wheat(*, seed: int = 0, **params: Any) -> ProceduralPlant:
@@ -1165,21 +1195,12 @@ def make_dicot(*, seed: int = 0, **params: Any) -> ProceduralPlant:
     seed = _check_seed(seed)
     p: DicotParams = _make_params(DicotParams, params)
     rng = np.random.default_rng(seed)
-    lean = math.radians(p.stem_lean_deg) * rng.uniform()
-    lean_azimuth = rng.uniform(0.0, 2.0 * np.pi)
-    first_azimuth = rng.uniform(0.0, 2.0 * np.pi)
+    builder = _Builder()
+    stem = _main_stem(builder, p, rng)
     n = p.n_leaves
     u = rng.uniform(-1.0, 1.0, size=(6, n))
     blade_u = rng.uniform(-1.0, 1.0, size=(5, n, 3))
     branch_u = rng.uniform(-1.0, 1.0, size=(2, max(p.n_branches, 1)))
-
-    builder = _Builder()
-    r_base, r_top = 0.5 * p.stem_diameter, 0.5 * p.stem_top_diameter
-    stem_vertices, stem_faces, top = _stem(np.zeros(2), p.stem_length, lean, lean_azimuth,
-                                           r_base, r_top, p.stem_sides, p.stem_rings)
-    builder.add(stem_vertices, stem_faces, PART_STEM, 0)
-    stems = [{"index": 0, "base_xy_m": [0.0, 0.0], "diameter_m": 2.0 * r_base,
-              "height_m": float(top[2]), "top_xyz_m": [float(c) for c in top]}]
 
     # Where each leaf attaches: (axis point, axis radius, azimuth, rank q, axis kind, axis index).
     n_stem_leaves = n - p.n_branches * p.leaves_per_branch
@@ -1187,10 +1208,10 @@ def make_dicot(*, seed: int = 0, **params: Any) -> ProceduralPlant:
     for k in range(n_stem_leaves):
         q = k / (n_stem_leaves - 1) if n_stem_leaves > 1 else 0.5
         fraction = p.lowest_node_fraction + (p.highest_node_fraction - p.lowest_node_fraction) * q
-        axis, _ = _arc_axis(np.array([p.stem_length * fraction]), p.stem_length, lean, lean_azimuth)
-        azimuth = (first_azimuth + k * math.radians(p.phyllotaxy_deg)
+        node, radius = stem.node(fraction)
+        azimuth = (stem.first_azimuth + k * math.radians(p.phyllotaxy_deg)
                    + math.radians(p.phyllotaxy_jitter_deg) * u[0, k])
-        attachments.append((axis[0], r_base + (r_top - r_base) * fraction, azimuth, q, "stem", 0))
+        attachments.append((node, radius, azimuth, q, "stem", 0))
     branches = []
     for i in range(p.n_branches):
         node_point, node_radius, node_azimuth, q_node = attachments[i][:4]
@@ -1255,7 +1276,7 @@ def make_dicot(*, seed: int = 0, **params: Any) -> ProceduralPlant:
             indices.append(index)
         petioles.append({"index": k, "axis": axis_kind, "axis_index": axis_index,
                          "length_m": float(total), "diameter_m": p.petiole_diameter, "leaves": indices})
-    plant = _finish("dicot", seed, p, builder, stems, leaves)
+    plant = _finish("dicot", seed, p, builder, stem.truth, leaves)
     plant.traits["petioles"] = petioles
     plant.traits["branches"] = branches
     return plant
