@@ -24,13 +24,13 @@ import dataclasses
 import json
 import logging
 import math
-import os
 import time
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from plantsim._cores import usable_cores
 from plantsim.evaluation import metrics, traits
 from plantsim.plant import labels
 from plantsim.plant.mesh import PlantMesh
@@ -347,7 +347,7 @@ def evaluation_threads(threads: int | None) -> int:
     Raises:
         ValueError: ``threads`` not a positive integer or None.
     """
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    cores = usable_cores()
     if threads is None:
         return cores
     if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:

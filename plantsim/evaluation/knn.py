@@ -12,10 +12,10 @@ to use fewer threads, or a machine without pykdtree, goes to ``cKDTree`` with ``
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 from scipy.spatial import cKDTree
+
+from plantsim._cores import usable_cores as _cores
 
 __all__ = ["NeighbourIndex", "pykdtree_available"]
 
@@ -30,10 +30,6 @@ def pykdtree_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def _cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 class NeighbourIndex:

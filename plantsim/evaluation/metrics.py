@@ -36,12 +36,12 @@ import concurrent.futures
 import dataclasses
 import logging
 import math
-import os
 from typing import Any, Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from plantsim._cores import usable_cores
 from plantsim.evaluation.knn import NeighbourIndex
 
 logger = logging.getLogger(__name__)
@@ -109,13 +109,6 @@ def _as_mesh(vertices: Any, faces: Any) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------
 # exact point-triangle distance (vectorised)
 # --------------------------------------------------------------------------
-def _n_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def _dot(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", x, y)
 
@@ -479,7 +472,7 @@ class MeshProximity:
                     progress(sl.stop, n)
             return ClosestPoints(distance=np.sqrt(best_sq), closest_points=best_pt,
                                  triangle_index=best_tri)
-        n_threads = _n_cores() if workers == -1 else workers
+        n_threads = usable_cores() if workers == -1 else workers
         n_threads = max(1, min(n_threads, len(slices)))
         done = [0]
 

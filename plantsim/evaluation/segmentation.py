@@ -567,7 +567,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
             axis_tracks.append(np.array([[s.base_z, c0[0], c0[1]]]))
             continue
         cur = int(root_pieces[np.argmin(centroid[root_pieces, 2])])
-        axis_xy, prev_xy = c0.copy(), c0.copy()
+        axis_xy = c0.copy()
         reach = max(1.5 * st.diameter_m, 3.0 * v)
         track = [(s.base_z, c0[0], c0[1])]
         while True:
@@ -582,7 +582,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
             if off[best] > reach or centroid[kids[best], 2] <= centroid[cur, 2] - bin_w:
                 break
             if spread[kids[best]] <= reach:
-                prev_xy, axis_xy = axis_xy, centroid[kids[best], :2].copy()
+                axis_xy = centroid[kids[best], :2].copy()
                 track.append((float(centroid[kids[best], 2]), axis_xy[0], axis_xy[1]))
             cur = kids[best]
         stem_tops.append(centroid[cur].tolist())

@@ -26,7 +26,6 @@ import itertools
 import logging
 import math
 import multiprocessing
-import os
 import time
 import types
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -35,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from plantsim._cores import usable_cores
 from plantsim.scan.config import config_from_dict, merge
 from plantsim.evaluation.evaluate import EvaluationOptions, evaluate_scan
 from plantsim.resources import BUNDLED_PLANTS
@@ -251,13 +251,6 @@ def run_one(run: Mapping[str, Any], config_data: Mapping[str, Any],
     return row
 
 
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def _run_one_remote(run: Mapping[str, Any], config_data: Mapping[str, Any],
                     evaluation: EvaluationOptions, mesh: tuple[str, bytes] | None,
                     traits: tuple[str, bytes] | None) -> dict[str, Any]:
@@ -342,7 +335,7 @@ def run_study(sweep: Sweep, *, max_workers: int | None = None,
         except ValueError as exc:
             raise ValueError(f"run {i} ({run}) is not a valid configuration: {exc}") from exc
         datas.append(data)
-    workers = min(max_workers or _cores(), len(runs))
+    workers = min(max_workers or usable_cores(), len(runs))
     rows: list[dict[str, Any] | None] = [None] * len(runs)
 
     def done(i: int, row: dict) -> None:
