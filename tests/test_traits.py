@@ -144,6 +144,41 @@ def test_a_stem_with_two_leaves_is_taken_apart():
     assert t.height_m == pytest.approx(0.4, abs=1e-3)
 
 
+def _stem_with(rng, *leaves, height=0.4):
+    return np.vstack([_cylinder_cloud(rng, (0.0, 0.0), 0.006, height, 30_000), *leaves])
+
+
+def test_a_leaf_whose_middle_band_is_hidden_stays_one_leaf():
+    # A band along the middle of a leaf that no view sees (a leaf below shades it)
+    # cuts it into two parallel halves, each with its own tip: 45 mm wide, 16 mm
+    # hidden. They lie side by side in one plane, so they are one leaf, and the
+    # leaf's width and area span the hidden band.
+    rng = np.random.default_rng(7)
+    leaf = _strip(rng, 0.25, 0.045, 12_000, origin=(0.006, 0.0, 0.2))
+    leaf = leaf[np.abs(leaf[:, 1]) > 0.008]
+    t = traits.extract_traits(_stem_with(rng, leaf))
+    assert t.leaf_count == 1
+    assert t.leaf_widths_m[0] == pytest.approx(0.045, rel=0.06)
+    assert t.leaf_area_m2 == pytest.approx(0.25 * 0.045, rel=0.10)
+
+
+def test_stacked_leaves_and_leaflets_side_by_side_stay_apart():
+    rng = np.random.default_rng(8)
+    # Two leaves one above the other, 12 mm apart: parallel and level, but the
+    # offset is along their normal.
+    lower = _strip(rng, 0.22, 0.03, 6_000, origin=(0.006, 0.0, 0.20))
+    upper = _strip(rng, 0.22, 0.03, 6_000, origin=(0.006, 0.0, 0.212))
+    assert traits.extract_traits(_stem_with(rng, lower, upper)).leaf_count == 2
+    # Two parallel leaflets in one plane, on stalks to either side: 70 mm apart and
+    # 180 mm long, side by side but not three times as long as they are apart: not the
+    # halves of one leaf.
+    organs = []
+    for side in (-1.0, 1.0):
+        organs.append(_strip(rng, 0.03, 0.004, 1_000, origin=(0.0, 0.005 * side, 0.2),
+                             direction=(0.0, side, 0.0)))
+        organs.append(_strip(rng, 0.18, 0.03, 7_000, origin=(-0.002, 0.035 * side, 0.2)))
+    assert traits.extract_traits(_stem_with(rng, *organs, height=0.3)).leaf_count == 2
+
 # --------------------------------------------------------------------------
 # volume and area
 # --------------------------------------------------------------------------

@@ -34,6 +34,11 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    shorter spurs join the leaf they hang from. Stem pieces keep only the points
    within the stem's radius (plus noise and a voxel) of the axis the walk tracked;
    the rest, leaf bases wrapped round the stem, go to the leaf they touch.
+7. Halves: a band along a leaf that no view sees (shaded by a leaf below) cuts the
+   leaf lengthwise, and each half grows its own tip. Two leaves whose midribs run
+   side by side, parallel, offset within both leaves' surfaces and for at least
+   three times their distance apart are joined (:func:`_merge_split_leaves`);
+   the joined leaf's width spans the hidden band.
 
 Validity: plants with thin stems and strap or broad leaves attached to them
 (cereals, maize, seedlings), turntable frame with z up and the base at ``base_z``.
@@ -485,6 +490,122 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
     return stem_label, leaf_label
 
 
+def _node_frames(leaf_pts: np.ndarray, midrib: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per midrib node: unit tangent, unit normal (NaN with under 4 points) and width.
+
+    A node's points are those nearest it; their spread across the tangent gives the
+    in-plane axis (largest) and the normal; the width is the 2nd-98th percentile
+    extent along the in-plane axis.
+    """
+    seg = np.diff(midrib, axis=0)
+    tangent = seg / np.maximum(np.linalg.norm(seg, axis=1), 1e-12)[:, None]
+    tangent = np.vstack([tangent, tangent[-1:]])
+    normal = np.full((len(midrib), 3), np.nan)
+    width = np.zeros(len(midrib))
+    if len(leaf_pts) == 0:
+        return tangent, normal, width
+    _, node = cKDTree(midrib).query(leaf_pts)
+    for i in range(len(midrib)):
+        q = leaf_pts[node == i]
+        if len(q) < 4:
+            continue
+        q = q - q.mean(axis=0)
+        q = q - np.outer(q @ tangent[i], tangent[i])
+        _, _, vt = np.linalg.svd(q, full_matrices=False)
+        u = q @ vt[0]
+        width[i] = float(np.percentile(u, 98) - np.percentile(u, 2))
+        normal[i] = np.cross(tangent[i], vt[0])
+    return tangent, normal, width
+
+
+def _nearest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest point of a polyline (k >= 2 vertices) to each point, and its segment index."""
+    a, seg = polyline[:-1], np.diff(polyline, axis=0)
+    seg_len2 = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-24)
+    t = np.clip(np.einsum("nij,ij->ni", points[:, None, :] - a[None], seg) / seg_len2, 0.0, 1.0)
+    foot = a[None] + t[..., None] * seg[None]
+    best = np.linalg.norm(points[:, None, :] - foot, axis=2).argmin(axis=1)
+    return foot[np.arange(len(points)), best], best
+
+
+def _merge_split_leaves(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray], *,
+                        bin_w: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Join leaves that are the two halves of one leaf, split along its length.
+
+    When a band along a leaf is hidden from every view (a leaf below shades its
+    middle), the level sets cut the leaf in two and each half grows its own tip.
+    Two leaves are halves of one when, along most (60 %) of the shorter one's
+    midrib, the longer one's midrib runs beside it: parallel (within 25 degrees),
+    level with it (its nearest midrib point within half a bin, plus the
+    parallel tolerance over their distance, along the midrib), and offset within both
+    leaves' planes (the offset at most 25 degrees out of either surface: a
+    leaf's cross-section is curved), no
+    farther than twice their two widths, and the stretch so run side by side is
+    at least three times their distance apart (a leaf's halves are long and
+    narrow; leaflets side by side are about as long as they are apart). Leaves stacked one above the other
+    (offset along the normal) and leaflets that fan out from one point (not
+    parallel) stay apart. The joined leaf keeps the longer one's midrib.
+    """
+    n = len(midribs)
+    if n < 2:
+        return leaf_label, midribs
+    frames = [_node_frames(pts[leaf_label == i], midribs[i]) for i in range(n)]
+    length = np.array([float(np.linalg.norm(np.diff(m, axis=0), axis=1).sum()) for m in midribs])
+    trees = [cKDTree(m) for m in midribs]
+    cos_par, sin_plane = math.cos(math.radians(25.0)), math.sin(math.radians(25.0))
+    into = np.arange(n)
+
+    def root(i: int) -> int:
+        while into[i] != i:
+            i = int(into[i])
+        return i
+
+    for b in np.argsort(length, kind="stable"):
+        t_b, n_b, w_b = frames[b]
+        ks = [k for k in range(1, len(midribs[b])) if np.isfinite(n_b[k, 0])]
+        step_b = np.linalg.norm(np.diff(midribs[b], axis=0), axis=1)  # node k to k + 1 ...
+        step_b = np.r_[step_b[:1], 0.5 * (step_b[:-1] + step_b[1:]), step_b[-1:]]  # ... as a node's share
+        if len(ks) < 3:
+            continue
+        best = None
+        for a in np.argsort(-length, kind="stable"):
+            if a == b or length[a] < length[b] or root(int(a)) == root(int(b)):
+                continue
+            t_a, n_a, w_a = frames[a]
+            foot, seg_a = _nearest_on_polyline(midribs[a], midribs[b][ks])
+            _, near = trees[a].query(foot)
+            run, apart = 0.0, []
+            for k, f, i, j in zip(ks, foot, seg_a, near):
+                off = f - midribs[b][k]
+                along = float(off @ t_b[k])
+                perp = off - along * t_b[k]
+                d = float(np.linalg.norm(perp))
+                if (abs(float(t_b[k] @ t_a[i])) < cos_par or abs(along) > 0.5 * bin_w + sin_plane * d
+                        or d > 2.0 * (w_b[k] + w_a[j]) or d == 0.0):
+                    continue
+                if abs(float(perp @ n_b[k])) > sin_plane * d:
+                    continue
+                if np.isfinite(n_a[j, 0]) and abs(float(perp @ n_a[j])) > sin_plane * d:
+                    continue
+                run += step_b[k]
+                apart.append(d)
+            if len(apart) >= 0.6 * len(ks) and run >= 3.0 * float(np.median(apart)):
+                best = int(a)
+                break
+        if best is not None:
+            into[b] = root(best)
+    roots = np.array([root(i) for i in range(n)])
+    if (roots == np.arange(n)).all():
+        return leaf_label, midribs
+    keep = np.flatnonzero(roots == np.arange(n))
+    new_index = np.full(n, -1, dtype=np.int64)
+    new_index[keep] = np.arange(len(keep))
+    relabel = np.where(leaf_label >= 0, new_index[roots[np.maximum(leaf_label, 0)]], -1)
+    logger.info("segmentation: %d leaves were halves of others (split lengthwise) and joined them",
+                n - len(keep))
+    return relabel, [midribs[i] for i in keep]
+
+
 def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | None = None
                    ) -> Segmentation:
     """Stems and leaves of a cloud (method in the module docstring).
@@ -624,10 +745,11 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
         stem_label, leaf_label = _release_leaf_bases(
             pts, stem_label, leaf_label, stems, axis_tracks, margin=2.5 * scale.noise_m + v,
             link=2 * s.link_factor * v + 8 * scale.noise_m)
-    midribs = tuple(centroid[np.array(ch)] for ch in leaf_chains)
+    midribs = [centroid[np.array(ch)] for ch in leaf_chains]
+    leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(leaf_chains))
     return Segmentation(points=pts, kept=kept, stem_label=stem_label, leaf_label=leaf_label,
                         stems=stems, stem_tops_m=np.array(stem_tops, dtype=np.float64).reshape(-1, 3),
-                        leaf_midribs=midribs, scale=scale)
+                        leaf_midribs=tuple(midribs), scale=scale)
