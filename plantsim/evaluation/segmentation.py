@@ -490,8 +490,8 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
     return stem_label, leaf_label
 
 
-def _node_frames(leaf_pts: np.ndarray, midrib: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per midrib node: unit tangent, unit normal (NaN with under 4 points) and width.
+def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per midrib node: unit tangent, unit normal (NaN with under 3 points) and width.
 
     A node's points are those nearest it; their spread across the tangent gives the
     in-plane axis (largest) and the normal; the width is the 2nd-98th percentile
@@ -507,7 +507,7 @@ def _node_frames(leaf_pts: np.ndarray, midrib: np.ndarray) -> tuple[np.ndarray, 
     _, node = cKDTree(midrib).query(leaf_pts)
     for i in range(len(midrib)):
         q = leaf_pts[node == i]
-        if len(q) < 4:
+        if len(q) < 3:
             continue
         q = q - q.mean(axis=0)
         q = q - np.outer(q @ tangent[i], tangent[i])
@@ -549,7 +549,7 @@ def _merge_split_leaves(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[n
     n = len(midribs)
     if n < 2:
         return leaf_label, midribs
-    frames = [_node_frames(pts[leaf_label == i], midribs[i]) for i in range(n)]
+    frames = [node_frames(pts[leaf_label == i], midribs[i]) for i in range(n)]
     length = np.array([float(np.linalg.norm(np.diff(m, axis=0), axis=1).sum()) for m in midribs])
     trees = [cKDTree(m) for m in midribs]
     cos_par, sin_plane = math.cos(math.radians(25.0)), math.sin(math.radians(25.0))

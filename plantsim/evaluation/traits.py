@@ -681,6 +681,8 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     """
     if len(midrib) < 2 or len(points) < 3:
         return _NAN, _NAN, _NAN, _NAN
+    from plantsim.evaluation.segmentation import node_frames
+
     seg = np.diff(midrib, axis=0)
     seg_len = np.linalg.norm(seg, axis=1)
     # Each point to its nearest midrib node.
@@ -688,18 +690,7 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     beyond = float(max(0.0, ((points[node == len(midrib) - 1] - midrib[-1]) @ tip_dir).max()))
     length = float(seg_len.sum() + beyond)
-    widths = np.zeros(len(midrib))
-    for i in range(len(midrib)):
-        q = points[node == i]
-        if len(q) < 3:
-            continue
-        t = seg[min(i, len(seg) - 1)]
-        t = t / max(np.linalg.norm(t), 1e-12)
-        q = q - q.mean(axis=0)
-        q = q - np.outer(q @ t, t)
-        _, _, vt = np.linalg.svd(q, full_matrices=False)
-        u = q @ vt[0]
-        widths[i] = float(np.percentile(u, 98) - np.percentile(u, 2))
+    widths = node_frames(points, midrib)[2]
     widths[0] = 0.0  # the junction node is the stem's
     area = float(np.sum(0.5 * (widths[:-1] + widths[1:]) * seg_len))
     chord = midrib[-1] - midrib[0]
