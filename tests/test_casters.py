@@ -43,7 +43,7 @@ def both(scene, model=None, angles_deg=np.arange(0, 360, 7.0), *, embree_from="m
         source = SimulatedLidar(use, URG_04LX_UG01, ANGLES, model=model, backend=make_backend(use, name))
         assert source.caster.backend.name == name
         if name == "embree":
-            assert ("MuJoCo not loaded" in source.describe()["ray_caster_detail"]) == (embree_from == "layout")
+            assert ("no MuJoCo model used to cast" in source.describe()["ray_caster_detail"]) == (embree_from == "layout")
             assert use.model_compiled == (embree_from == "model")
         out[name] = source.cast_lines(np.radians(angles_deg), np.random.default_rng(0))
     return out["mujoco"], out["embree"]

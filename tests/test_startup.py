@@ -93,7 +93,7 @@ def test_a_kinematic_scan_cast_with_embree_never_loads_mujoco(tmp_path):
         assert result.stdout.split("\n")[-2] == "no mujoco", result.stdout
         sidecar = json.loads((tmp_path / "x.las.json").read_text())
         assert "mujoco" in sidecar["versions"]["not_loaded"]
-        assert "MuJoCo not loaded" in sidecar["simulated"]["lidar"]["ray_caster_detail"]
+        assert "no MuJoCo model used to cast" in sidecar["simulated"]["lidar"]["ray_caster_detail"]
 
 
 @pytest.mark.parametrize("argv, user, expected", [

@@ -120,7 +120,7 @@ class EmbreeBackend:
         usable = cast & ~excluded
         is_mesh = np.array([g.type == "mesh" for g in layout.geoms])
         self.detail = ("Embree on the plant's own float64 triangles (float32 traversal, float64 distance); "
-                       "the rig's primitives analytic (plantsim.sensor.primitives); MuJoCo not loaded")
+                       "the rig's primitives analytic (plantsim.sensor.primitives); no MuJoCo model used to cast")
         self._fixed_prims = [(i, g) for i, g in enumerate(layout.geoms)
                              if usable[i] and not g.turning and not is_mesh[i]]
         self._turning_prims = [(i, g) for i, g in enumerate(layout.geoms)
