@@ -490,8 +490,10 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
     return stem_label, leaf_label
 
 
-def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per midrib node: unit tangent, unit normal (NaN with under 3 points) and width.
+def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per midrib node: unit tangent, unit normal (NaN with under 3 points) and width;
+    and each point's node.
 
     A node's points are those nearest it; their spread across the tangent gives the
     in-plane axis (largest) and the normal; the width is the 2nd-98th percentile
@@ -503,7 +505,7 @@ def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray) -> tuple[np.ndarray, n
     normal = np.full((len(midrib), 3), np.nan)
     width = np.zeros(len(midrib))
     if len(leaf_pts) == 0:
-        return tangent, normal, width
+        return tangent, normal, width, np.zeros(0, dtype=np.int64)
     _, node = cKDTree(midrib).query(leaf_pts)
     for i in range(len(midrib)):
         q = leaf_pts[node == i]
@@ -515,7 +517,7 @@ def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray) -> tuple[np.ndarray, n
         u = q @ vt[0]
         width[i] = float(np.percentile(u, 98) - np.percentile(u, 2))
         normal[i] = np.cross(tangent[i], vt[0])
-    return tangent, normal, width
+    return tangent, normal, width, node
 
 
 def _nearest_on_polyline(polyline: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -534,22 +536,26 @@ def _merge_split_leaves(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[n
 
     When a band along a leaf is hidden from every view (a leaf below shades its
     middle), the level sets cut the leaf in two and each half grows its own tip.
-    Two leaves are halves of one when, along most (60 %) of the shorter one's
-    midrib, the longer one's midrib runs beside it: parallel (within 25 degrees),
-    level with it (its nearest midrib point within half a bin, plus the
-    parallel tolerance over their distance, along the midrib), and offset within both
-    leaves' planes (the offset at most 25 degrees out of either surface: a
-    leaf's cross-section is curved), no
-    farther than twice their two widths, and the stretch so run side by side is
-    at least three times their distance apart (a leaf's halves are long and
-    narrow; leaflets side by side are about as long as they are apart). Leaves stacked one above the other
-    (offset along the normal) and leaflets that fan out from one point (not
-    parallel) stay apart. The joined leaf keeps the longer one's midrib.
+    Two leaves are halves of one when, at 60 % of the shorter one's midrib nodes,
+    the longer one's midrib runs beside it:
+
+    - parallel, within 25 degrees;
+    - level with it: the nearest point of the other midrib lies within half a bin
+      along the midrib, plus the parallel tolerance over their distance;
+    - offset within both leaves' surfaces, at most 25 degrees out of either (a
+      leaf's cross-section is curved);
+    - no farther apart than twice their two widths;
+
+    and the stretch so run side by side is at least three times their distance
+    apart (a leaf's halves are long and narrow; leaflets side by side are about
+    as long as they are apart). Leaves stacked one above the other (offset along
+    the normal) and leaflets that fan out from one point (not parallel) stay
+    apart. The joined leaf keeps the longer one's midrib.
     """
     n = len(midribs)
     if n < 2:
         return leaf_label, midribs
-    frames = [node_frames(pts[leaf_label == i], midribs[i]) for i in range(n)]
+    frames = [node_frames(pts[leaf_label == i], midribs[i])[:3] for i in range(n)]
     length = np.array([float(np.linalg.norm(np.diff(m, axis=0), axis=1).sum()) for m in midribs])
     trees = [cKDTree(m) for m in midribs]
     cos_par, sin_plane = math.cos(math.radians(25.0)), math.sin(math.radians(25.0))
@@ -563,10 +569,10 @@ def _merge_split_leaves(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[n
     for b in np.argsort(length, kind="stable"):
         t_b, n_b, w_b = frames[b]
         ks = [k for k in range(1, len(midribs[b])) if np.isfinite(n_b[k, 0])]
-        step_b = np.linalg.norm(np.diff(midribs[b], axis=0), axis=1)  # node k to k + 1 ...
-        step_b = np.r_[step_b[:1], 0.5 * (step_b[:-1] + step_b[1:]), step_b[-1:]]  # ... as a node's share
         if len(ks) < 3:
             continue
+        step_b = np.linalg.norm(np.diff(midribs[b], axis=0), axis=1)  # node k to k + 1 ...
+        step_b = np.r_[step_b[:1], 0.5 * (step_b[:-1] + step_b[1:]), step_b[-1:]]  # ... as a node's share
         best = None
         for a in np.argsort(-length, kind="stable"):
             if a == b or length[a] < length[b] or root(int(a)) == root(int(b)):

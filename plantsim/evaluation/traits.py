@@ -685,12 +685,11 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
 
     seg = np.diff(midrib, axis=0)
     seg_len = np.linalg.norm(seg, axis=1)
-    # Each point to its nearest midrib node.
-    _, node = cKDTree(midrib).query(points)
+    # Per node its width; each point to its nearest midrib node.
+    _, _, widths, node = node_frames(points, midrib)
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     beyond = float(max(0.0, ((points[node == len(midrib) - 1] - midrib[-1]) @ tip_dir).max()))
     length = float(seg_len.sum() + beyond)
-    widths = node_frames(points, midrib)[2]
     widths[0] = 0.0  # the junction node is the stem's
     area = float(np.sum(0.5 * (widths[:-1] + widths[1:]) * seg_len))
     chord = midrib[-1] - midrib[0]
