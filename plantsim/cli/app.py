@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import os
 import sys
@@ -391,6 +392,12 @@ def main(argv: list[str] | None = None) -> int:
         _lean_scan_process(draws=bool(_opt(args, "evaluate")))
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="plantsim: %(levelname)s: %(message)s")
+    if own_process:
+        # What is loaded by now (numpy, the command line) lives as long as the process:
+        # moved out of the cyclic collector's way, the collections that the scan's many
+        # small objects (the mesh handed to Embree as Python numbers) trigger no longer
+        # walk it again and again (~20 ms of a 0.4 s scan). New objects are collected as usual.
+        gc.freeze()
     try:
         return args.func(args)
     except KeyboardInterrupt:
