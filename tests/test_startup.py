@@ -46,7 +46,7 @@ def test_unique_rows_of_an_empty_array():
     assert unique.shape == (0, 3) and inverse.shape == (0,)
 
 
-def test_a_scan_process_loads_no_hardware_no_evaluation_and_no_http_client():
+def test_a_scan_process_loads_no_hardware_no_evaluation_no_http_client_no_toml_and_no_openssl():
     code = ("import sys\n"
             "from plantsim.cli.app import build_parser, _lean_scan_process\n"
             "build_parser(only_scan=True)\n"
@@ -54,7 +54,8 @@ def test_a_scan_process_loads_no_hardware_no_evaluation_and_no_http_client():
             "import mujoco, laspy\n"
             "from plantsim.scan import pipeline\n"
             "bad = sorted(m for m in sys.modules if m.startswith(('plantsim.hardware', 'plantsim.evaluation.metrics',"
-            " 'plantsim.plant.procedural', 'matplotlib', 'rosbags', 'glfw')) or m == 'requests' and sys.modules[m])\n"
+            " 'plantsim.plant.procedural', 'matplotlib', 'rosbags', 'glfw', 'tomllib', 'hashlib'))"
+            " or m == 'requests' and sys.modules[m])\n"
             "print(','.join(bad), hasattr(mujoco, 'MjModel'), laspy.LasData is not None)\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr

@@ -25,12 +25,6 @@ from plantsim.sensor.spec import PRESETS, LidarSpec, lidar_preset
 from plantsim.sensor.casting import BACKENDS
 from plantsim.sensor.model import SensorModel
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on 3.10 only
-    import tomli as tomllib
-
-
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PlantOptions:
     """Which plant, and how to read and place it.
@@ -243,6 +237,11 @@ def config_from_dict(data: dict[str, Any], *, base_dir: str | os.PathLike | None
 
 def load_toml(path: str | os.PathLike) -> dict[str, Any]:
     """Reads a TOML configuration file."""
+    if sys.version_info >= (3, 11):  # imported here: a scan without a file never parses TOML
+        import tomllib
+    else:  # pragma: no cover - exercised on 3.10 only
+        import tomli as tomllib
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"config file not found: {path}")

@@ -17,7 +17,6 @@ record as a ROS 2 bag.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import math
 import logging
 import os
@@ -452,6 +451,8 @@ def scan_identity(config: RunConfig, plant: PlantMesh, turntable, source) -> dic
     part of it either. The plant is identified by its placed geometry (a hash), not
     its file path, so a relative path from another directory still resumes.
     """
+    import hashlib  # here: only a journaled (resumable) scan has an identity; OpenSSL loads in ~4 ms
+
     digest = hashlib.sha256()
     for array in (plant.vertices_mesh, plant.faces, plant.T_turntable_mesh):
         digest.update(array.tobytes())
