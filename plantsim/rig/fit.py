@@ -73,7 +73,7 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
         out.append(f"the plant sweeps a radius of {r_max:.3f} m but the LiDAR is "
                    f"{rig.lidar_distance_m:.3f} m from the axis (near limit {lidar.range_min_m:.3f} m): "
                    f"it passes through or too near the sensor; move the LiDAR to at least "
-                   f"{r_max + lidar.range_min_m + 0.05:.3f} m (or use fit_rig)")
+                   f"{r_max + lidar.range_min_m + 0.05:.3f} m (or use fit_rig: --fit-rig)")
     gap = max(rig.lidar_distance_m - r_max, 1e-6)
     a_min = math.radians(lidar.angle_min_deg)
     a_max = a_min + math.radians((lidar.n_beams - 1) * lidar.angle_increment_deg)
@@ -95,7 +95,7 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     top_deg = math.degrees(_top_elevation_rad(plant, rig))
     if top_deg > MAX_ELEVATION_DEG:
         out.append(f"the top is seen {top_deg:.0f} deg above the horizontal (> {MAX_ELEVATION_DEG:.0f}): "
-                   "grazing beams, sparse top; raise or move back the LiDAR")
+                   "grazing beams, sparse top; raise or move back the LiDAR (or use fit_rig: --fit-rig)")
     return out
 
 
