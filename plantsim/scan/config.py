@@ -25,6 +25,7 @@ from plantsim.sensor.spec import PRESETS, LidarSpec, lidar_preset
 from plantsim.sensor.casting import BACKENDS
 from plantsim.sensor.model import SensorModel
 
+
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class PlantOptions:
     """Which plant, and how to read and place it.
