@@ -755,7 +755,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
-                1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(leaf_chains))
+                1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
     return Segmentation(points=pts, kept=kept, stem_label=stem_label, leaf_label=leaf_label,
                         stems=stems, stem_tops_m=np.array(stem_tops, dtype=np.float64).reshape(-1, 3),
                         leaf_midribs=tuple(midribs), scale=scale)
