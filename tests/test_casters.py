@@ -237,3 +237,63 @@ def test_embree_mesh_input_builds_the_scene_of_plain_arrays():
     assert (want >= 0).sum() > 1000
     np.testing.assert_array_equal(fast.run(o, d), want)
     np.testing.assert_array_equal(fast.run(o, d, output=1)["tfar"], plain.run(o, d, output=1)["tfar"])
+
+
+def _geom(type_, pos=(0.0, 0.0, -0.005), R=np.eye(3)):
+    from plantsim.rig.layout import Geom
+
+    return Geom(name="g", type=type_, size=np.array([0.1, 0.005, 0.0]), pos_base=np.array(pos, dtype=float),
+                R_base_geom=np.asarray(R, dtype=float), group=1, body="turntable", turning=True)
+
+
+def test_only_exact_solids_of_revolution_about_the_axis_are_invariant():
+    flip = np.diag([1.0, -1.0, -1.0])  # the cylinder upside down: still about the axis
+    about_z = trimesh.transformations.rotation_matrix(0.3, [0, 0, 1])[:3, :3]
+    tilted = trimesh.transformations.rotation_matrix(1e-9, [1, 0, 0])[:3, :3]
+    assert embree.is_solid_of_revolution(_geom("cylinder"))
+    assert embree.is_solid_of_revolution(_geom("cylinder", R=flip))
+    assert embree.is_solid_of_revolution(_geom("cylinder", R=about_z))
+    assert embree.is_solid_of_revolution(_geom("sphere", pos=(0.0, 0.0, 0.2), R=tilted))
+    assert not embree.is_solid_of_revolution(_geom("cylinder", R=tilted))
+    assert not embree.is_solid_of_revolution(_geom("cylinder", pos=(1e-12, 0.0, 0.0)))
+    assert not embree.is_solid_of_revolution(_geom("sphere", pos=(0.0, 1e-12, 0.0)))
+    assert not embree.is_solid_of_revolution(_geom("box"))
+
+
+def test_the_disk_cast_once_gives_the_hits_of_the_disk_cast_at_every_angle():
+    """The disk's hits, cast once in the base frame and merged as the caster merges the rig's,
+    are those of casting every turning geom with the rays turned to each angle."""
+    plant = load_plant(bundled_plant_path("maize"))
+    backend = embree.EmbreeBackend(build_scene(RigGeometry(), plant), nthread=1)  # layout: disk analytic
+    disk = [g.name for g in build_scene(RigGeometry()).layout.geoms].index("disk")
+    assert backend.invariant_geoms.sum() == 1 and backend.invariant_geoms[disk]
+    rng = np.random.default_rng(11)
+    n = 4000
+    origins_base = np.column_stack([np.full(n, 0.35), rng.uniform(-0.12, 0.12, n), rng.uniform(-0.02, 0.3, n)])
+    dirs_base = np.column_stack([-np.ones(n), rng.uniform(-0.4, 0.4, n), rng.uniform(-1.2, 0.2, n)])
+    dirs_base /= np.linalg.norm(dirs_base, axis=1, keepdims=True)
+    inv = backend.cast_invariant(origins_base, dirs_base, normals=True)
+    assert (inv.geom_id == disk).sum() > n // 10
+    for theta in np.radians([0.0, 37.0, 181.5, 300.0]):
+        c, s = np.cos(theta), np.sin(theta)
+        R = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])  # base -> turntable at angle theta
+        o, d = origins_base @ R.T, dirs_base @ R.T
+        want = backend.cast_turning(o, d, normals=True)
+        rest = backend.cast_turning(o, d, normals=True, skip_invariant=True)
+        assert not (rest.geom_id == disk).any()
+        nearer = (inv.dist_m >= 0) & ((rest.dist_m < 0) | (inv.dist_m < rest.dist_m))
+        got_geom = np.where(nearer, inv.geom_id, rest.geom_id)
+        got_dist = np.where(nearer, inv.dist_m, rest.dist_m)
+        np.testing.assert_array_equal(got_geom, want.geom_id)
+        np.testing.assert_allclose(got_dist, want.dist_m, rtol=0, atol=1e-12)
+        on_disk = want.geom_id == disk
+        np.testing.assert_allclose(inv.normal_base[on_disk], want.normal_base[on_disk] @ R, atol=1e-12)
+
+
+def test_skipping_the_invariant_geoms_is_refused_where_mujoco_casts_them():
+    scene = build_scene(RigGeometry(), load_plant(bundled_plant_path("maize")))
+    scene.model  # compiled: MuJoCo casts the primitives
+    backend = embree.EmbreeBackend(scene, nthread=1)
+    assert backend.cast_invariant(np.zeros((1, 3)), np.array([[1.0, 0, 0]])) is None
+    with pytest.raises(ValueError, match="skip_invariant"):
+        backend.cast_turning(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), skip_invariant=True)

@@ -100,8 +100,10 @@ def test_primitive_culling_gives_the_hits_of_casting_every_ray_on_the_disk(model
     if not embree.embree_available():
         pytest.skip("embreex is not installed (pip install 'plantsim[fast]')")
     scene = box_scene()
+    scene.model  # compiled: MuJoCo casts the primitives (on a layout, the disk is cast once per ray instead)
     source = SimulatedLidar(scene, URG_04LX_UG01, ANGLES, model=model, backend=embree.EmbreeBackend(scene))
     caster = source.caster
+    assert not caster._skip_invariant
     near = caster._may_hit_primitives[:-1]
     assert 0.0 < near.mean() < 0.5  # most rays cannot reach the disk
     theta = np.radians(np.arange(0, 360, 15.0))

@@ -102,7 +102,11 @@ class Backend(Protocol):
     primitives) and accept ``cast_turning(..., reach_primitives=mask)``: the
     :class:`Caster` then passes which rays may reach that cylinder (known per ray
     of its table, since the cylinder is about the axis), and the backend casts
-    the primitives for those alone.
+    the primitives for those alone. A backend whose ``cast_invariant`` gives the
+    hits of the turning geoms that are solids of revolution about the axis (the
+    same at every angle; ``invariant_geoms`` says which) has them cast once per ray
+    of the table; it then takes ``cast_turning(..., skip_invariant=True)`` and its
+    ``variant_primitive_bounds`` holds the other turning primitives.
     """
 
     name: str
@@ -401,8 +405,8 @@ class Caster:
       n_rays_cast: turning rays cast so far (padding excluded), including those
         resolved by the bounding cylinder alone (``n_rays_culled``).
       n_rays_culled: rays of ``n_rays_cast`` that could not reach the turning geoms
-        (they miss the cylinder about the axis that holds them, or hit the rig first)
-        and so never reached the backend.
+        (they miss the cylinder about the axis that holds them, or hit the rig, or a
+        turning solid of revolution cast once, first) and so never reached the backend.
       n_rays_fixed: rays cast once against the fixed rig (the whole ray table).
       cast_fixed_s, cast_turning_s: wall time inside the backend, s.
     """
@@ -426,19 +430,32 @@ class Caster:
         self.cast_fixed_s = time.perf_counter() - t
         self.n_rays_fixed = n
         self.cast_turning_s = 0.0
+        # Turning geoms that are solids of revolution about the axis (the disk) give the same
+        # hit at every angle: a backend that casts them apart casts each ray once here, and
+        # their hits join the rig's (a ray stopped by the disk is then never cast again).
+        invariant = getattr(self.backend, "cast_invariant", None)
+        inv = invariant(self.origins_base, self.dirs_base, normals=True) if invariant is not None else None
+        self._skip_invariant = inv is not None
+        turning_mask = None
+        if inv is not None:
+            nearer = (inv.dist_m >= 0) & ((fixed.dist_m < 0) | (inv.dist_m < fixed.dist_m))
+            fixed = Hits(np.where(nearer, inv.dist_m, fixed.dist_m), np.where(nearer, inv.geom_id, fixed.geom_id),
+                         np.where(nearer[:, None], inv.normal_base, fixed.normal_base))
+            turning_mask = ~self.backend.invariant_geoms
         self._fixed_dist = np.append(fixed.dist_m, -1.0)
         self._fixed_geom = np.append(fixed.geom_id, -1).astype(np.int32)
         self._fixed_normal = np.vstack([fixed.normal_base, np.zeros((1, 3))])
         # Rays that cannot reach the turning geoms at any angle (they miss the cylinder about
         # the axis that holds them, or the rig stops them first) are never cast: their hit
         # is the rig's, exactly as if they had been cast and missed.
-        reach = rays_may_reach(self.origins_base, self.dirs_base, turning_bounds(scene),
+        reach = rays_may_reach(self.origins_base, self.dirs_base, turning_bounds(scene, geoms=turning_mask),
                                np.where(fixed.dist_m >= 0, fixed.dist_m, np.inf))
         self._may_hit = np.append(reach, False)
         # A backend that casts the turning primitives apart (Embree: MuJoCo on the disk) casts
         # there only the rays that may reach them (a bounding cylinder, rotation-invariant).
         self._may_hit_primitives = None
-        bounds = getattr(self.backend, "primitive_bounds", None)
+        bounds = getattr(self.backend, "variant_primitive_bounds" if self._skip_invariant else "primitive_bounds",
+                         None)
         if bounds is not None:
             near = rays_may_reach(self.origins_base, self.dirs_base, bounds,
                                   np.where(fixed.dist_m >= 0, fixed.dist_m, np.inf))
@@ -512,6 +529,8 @@ class Caster:
             o = _turn(take_rows(self._origins, chosen), c, -s)
             d = _turn(take_rows(self._dirs, chosen), c, -s)
             options = {} if split else {"split": False}
+            if self._skip_invariant:
+                options["skip_invariant"] = True
             if self._may_hit_primitives is not None:
                 options["reach_primitives"] = self._may_hit_primitives[chosen]
             t = time.perf_counter()

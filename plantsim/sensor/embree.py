@@ -125,9 +125,15 @@ class EmbreeBackend:
                              if usable[i] and not g.turning and not is_mesh[i]]
         self._turning_prims = [(i, g) for i, g in enumerate(layout.geoms)
                                if usable[i] and g.turning and not is_mesh[i]]
+        self.invariant_geoms = np.zeros(len(layout.geoms), dtype=bool)
+        for i, g in self._turning_prims:
+            self.invariant_geoms[i] = is_solid_of_revolution(g)
+        self._variant_prims = [(i, g) for i, g in self._turning_prims if not self.invariant_geoms[i]]
+        self._invariant_prims = [(i, g) for i, g in self._turning_prims if self.invariant_geoms[i]]
         self._geom_ids = None
         mesh_geoms = np.flatnonzero(usable & is_mesh & layout.turning)
         self.primitive_bounds = turning_bounds(scene, geoms=~is_mesh)
+        self.variant_primitive_bounds = turning_bounds(scene, geoms=~is_mesh & ~self.invariant_geoms)
         if len(mesh_geoms) and scene.plant is not None and scene.plant.n_faces:
             self.geom_of_triangle = np.full(scene.plant.n_faces, mesh_geoms[0], dtype=np.int32)
             self._build_embree(scene.plant.vertices_turntable, scene.plant.faces)
@@ -140,7 +146,8 @@ class EmbreeBackend:
         import mujoco
 
         self.detail = "Embree on MuJoCo's mesh vertices (float64 distance); MuJoCo on the primitives"
-        self._fixed_prims = self._turning_prims = None
+        self._fixed_prims = self._turning_prims = self._variant_prims = self._invariant_prims = None
+        self.invariant_geoms = None
         model = scene.model
         data = mujoco.MjData(model)
         mujoco.mj_kinematics(model, data)  # the hinge at 0: the turntable frame is the base frame
@@ -212,14 +219,32 @@ class EmbreeBackend:
                    for lo, hi in zip(edges[:-1], edges[1:])]
         return lambda: np.concatenate([f.result() for f in futures])
 
-    def _cast_primitives(self, origins, dirs, normals, reach) -> Hits:
+    def cast_invariant(self, origins, dirs, *, normals=False) -> Hits | None:
+        """Casts (N, 3) rays, base frame, against the turning geoms that are solids of
+        revolution about the turntable axis (the disk: :attr:`invariant_geoms`).
+
+        Their hits do not depend on the table's angle, so a caster casts each ray of
+        its table once, merges the hits with the fixed rig's, and passes
+        ``cast_turning(..., skip_invariant=True)``. None when this backend casts no
+        such geoms apart (MuJoCo casts the primitives).
+        """
+        if self._invariant_prims is None:
+            return None
+        origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+        return Hits(*cast_geoms(self._invariant_prims, origins, dirs, normals=normals))
+
+    def _cast_primitives(self, origins, dirs, normals, reach, skip_invariant=False) -> Hits:
+        n = len(origins)
         if self._turning_prims is not None:
-            cast = lambda o, d: Hits(*cast_geoms(self._turning_prims, o, d, normals=normals))  # noqa: E731
+            prims = self._variant_prims if skip_invariant else self._turning_prims
+            if not prims:
+                return Hits(np.full(n, -1.0), np.full(n, -1, dtype=np.int32), np.zeros((n, 3)) if normals else None)
+            cast = lambda o, d: Hits(*cast_geoms(prims, o, d, normals=normals))  # noqa: E731
         else:
             cast = lambda o, d: self._full_ids(self._mujoco.cast_turning(o, d, normals=normals))  # noqa: E731
         if reach is None:
             return cast(origins, dirs)
-        n = len(origins)
         sub = np.flatnonzero(reach)
         dist, geom = np.full(n, -1.0), np.full(n, -1, dtype=np.int32)
         normal = np.zeros((n, 3)) if normals else None
@@ -236,21 +261,27 @@ class EmbreeBackend:
         turning primitives are cast analytically (numpy and Embree, no shared MuJoCo data)."""
         return self._turning_prims is not None
 
-    def cast_turning(self, origins, dirs, *, normals=False, reach_primitives=None, split=True) -> Hits:
+    def cast_turning(self, origins, dirs, *, normals=False, reach_primitives=None, split=True,
+                     skip_invariant=False) -> Hits:
         """Casts (N, 3) rays, turntable frame, against the turning geoms with the hinge at 0.
 
         ``reach_primitives``: (N,) bool, False where the ray surely misses the cylinder
-        :attr:`primitive_bounds` (MuJoCo then casts only the others); None: cast all.
+        :attr:`primitive_bounds` (:attr:`variant_primitive_bounds` with ``skip_invariant``)
+        (MuJoCo then casts only the others); None: cast all.
+        ``skip_invariant``: leave out the geoms :meth:`cast_invariant` casts (the caller
+        has their hits); only when that returns hits.
         ``split``: spread Embree's rays over the backend's threads (False: cast on the
         calling thread, for a caller that already casts chunks side by side).
         """
         origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
         dirs = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+        if skip_invariant and self._invariant_prims is None:
+            raise ValueError("skip_invariant: this backend casts no invariant geoms apart (cast_invariant gives None)")
         if self._embree is None or not len(origins):
-            return self._cast_primitives(origins, dirs, normals, reach_primitives)
+            return self._cast_primitives(origins, dirs, normals, reach_primitives, skip_invariant)
         embree_result = self._run_embree(origins.astype(np.float32), dirs.astype(np.float32), split)
         # MuJoCo on the turning primitives while Embree's threads traverse the mesh.
-        prim = self._cast_primitives(origins, dirs, normals, reach_primitives)
+        prim = self._cast_primitives(origins, dirs, normals, reach_primitives, skip_invariant)
         found = embree_result()  # primID, -1: miss
         at = np.flatnonzero(found >= 0)
         tri = found[at]
@@ -273,6 +304,23 @@ class EmbreeBackend:
             put_rows(out_normal, where, take_rows(n_hit, nearer))
         return Hits(out_dist, out_geom, out_normal)
 
+
+
+def is_solid_of_revolution(geom) -> bool:
+    """Whether a primitive is a solid of revolution about the turntable axis (base Z).
+
+    Such a geom (a sphere centred on the axis, a cylinder whose own axis is the
+    turntable's, like the disk) is the same surface at every table angle: a ray's
+    hit on it does not depend on the angle. Exact tests (a placement off the axis
+    by any amount, or tilted, is not one): nothing approximate is folded.
+    """
+    on_axis = geom.pos_base[0] == 0.0 and geom.pos_base[1] == 0.0
+    if geom.type == "sphere":
+        return bool(on_axis)
+    if geom.type == "cylinder":
+        axis = geom.R_base_geom[:, 2]
+        return bool(on_axis and axis[0] == 0.0 and axis[1] == 0.0 and abs(axis[2]) == 1.0)
+    return False
 
 
 def _without_meshes(scene: Scene, mesh_geoms: np.ndarray) -> tuple[Scene, np.ndarray] | None:
