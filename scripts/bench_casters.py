@@ -137,11 +137,16 @@ def main() -> None:
     source.cast_lines(angles, np.random.default_rng(0))
     source1.cast_lines(angles, np.random.default_rng(0))
     times = {"scan": [], "raw": [], "scan1": [], "raw1": []}
-    for _ in range(args.runs):  # alternated, so load changes hit all four
+    # Alternated, so load changes hit all four, in an order that gives each pair the same
+    # predecessor kind: both threaded runs follow a one-thread run (and find the second
+    # core idle: on a VM, waking it costs milliseconds), both one-thread runs a threaded one.
+    # (scan, raw, scan1, raw1) had the threaded scan phase follow a one-thread run and raw
+    # Embree a threaded one: 25.6 ms against 17.3 ms for the same scan phase after raw.
+    for _ in range(args.runs):
         for key, fn in (("scan", lambda: source.cast_lines(angles, np.random.default_rng(0))),
+                        ("raw1", lambda: raw.run(o32, d32)),
                         ("raw", raw_threaded),
-                        ("scan1", lambda: source1.cast_lines(angles, np.random.default_rng(0))),
-                        ("raw1", lambda: raw.run(o32, d32))):
+                        ("scan1", lambda: source1.cast_lines(angles, np.random.default_rng(0)))):
             t = time.perf_counter()
             fn()
             times[key].append(time.perf_counter() - t)
