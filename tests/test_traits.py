@@ -179,6 +179,37 @@ def test_stacked_leaves_and_leaflets_side_by_side_stay_apart():
         organs.append(_strip(rng, 0.18, 0.03, 7_000, origin=(-0.002, 0.035 * side, 0.2)))
     assert traits.extract_traits(_stem_with(rng, *organs, height=0.3)).leaf_count == 2
 
+def _beam_noise(rng, pts, sigma, lidar_distance=0.35, lidar_height=0.15):
+    """Range noise as a turntable LiDAR makes it: every beam lies in a vertical plane
+    through the axis (the fan), so a point moves along its own azimuth, rising or
+    falling as the beam from a LiDAR at (``lidar_distance``, ``lidar_height``) does."""
+    phi = np.arctan2(pts[:, 1], pts[:, 0])
+    elev = np.arctan2(pts[:, 2] - lidar_height, lidar_distance - np.hypot(pts[:, 0], pts[:, 1]))
+    e = rng.normal(0.0, sigma, len(pts))
+    return pts + e[:, None] * np.column_stack([np.cos(elev) * np.cos(phi), np.cos(elev) * np.sin(phi), np.sin(elev)])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("length, sigma", [(0.06, 0.008), (0.07, 0.010)])
+def test_short_sparse_leaves_on_a_noisy_stem_column_are_leaves(seed, length, sigma):
+    # A 7 mm stem seen by a noisy LiDAR fills a column several centimetres wide and
+    # holds most of the points; short leaves (as a bean's leaflets) leave it with a few
+    # hundred points each. The level sets put most of each leaf in the column's pieces,
+    # so its branch past them is shorter than a leaf's minimum; its tip lies well out
+    # of the column, so it is a leaf all the same (three, not 0-2).
+    rng = np.random.default_rng(seed)
+    r = 0.0035
+    stem = _cylinder_cloud(rng, (0.0, 0.0), r, 0.35, 40_000)
+    leaves = [_strip(rng, length, 0.025, 400, origin=(r * np.cos(a), r * np.sin(a), z),
+                     direction=(np.cos(a), np.sin(a), 0.0))
+              for z, a in ((0.14, 0.0), (0.21, 2.1), (0.28, 4.2))]
+    t = traits.extract_traits(_beam_noise(rng, np.vstack([stem, *leaves]), sigma))
+    assert t.stem_count == 1
+    assert t.leaf_count == 3
+    for got in t.leaf_lengths_m:
+        assert got == pytest.approx(length, rel=0.25)
+
+
 # --------------------------------------------------------------------------
 # volume and area
 # --------------------------------------------------------------------------

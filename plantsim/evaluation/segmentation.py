@@ -29,7 +29,11 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
 6. Organs: each stem follows the skeleton up from its root, always to the child
    whose centroid stays nearest the stem's (extrapolated) axis, while it stays
    within a few radii of it. Every other tip whose branch (tip to the junction
-   below it) is longer than ``min_leaf_length`` is a leaf tip; a leaf is the chain
+   below it) is longer than ``min_leaf_length`` is a leaf tip, and so is a tip
+   hanging from a stem piece that lies that far out of the stem's column (its
+   radius plus the noise band and a voxel): a noisy stem fills a column several
+   centimetres wide whose level sets hold most of a short leaf (a bean's
+   leaflets), leaving a branch of a bin or two past them; a leaf is the chain
    of nodes from its tip down to the stem, shared nodes going to the longer leaf;
    shorter spurs join the leaf they hang from. Stem pieces keep only the points
    within the stem's radius (plus noise and a voxel) of the axis the walk tracked;
@@ -454,6 +458,15 @@ def _graph(nodes: np.ndarray, link: float) -> sparse.csr_matrix:
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m)).tocsr()
 
 
+def _out_of_column(point: np.ndarray, stem: StemBase, track: np.ndarray, margin: float) -> float:
+    """How far a point lies out of a stem's column: its horizontal distance from the
+    axis the stem's walk tracked (at the point's height) less the stem's radius and
+    ``margin`` (noise and a voxel: the column a noisy stem's points fill)."""
+    tr = track[np.argsort(track[:, 0], kind="stable")]
+    axis = np.array([np.interp(point[2], tr[:, 0], tr[:, 1]), np.interp(point[2], tr[:, 0], tr[:, 2])])
+    return float(np.hypot(*(point[:2] - axis)) - 0.5 * stem.diameter_m - margin)
+
+
 def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.ndarray,
                         stems: tuple[StemBase, ...], tracks: list[np.ndarray], *,
                         margin: float, link: float) -> tuple[np.ndarray, np.ndarray]:
@@ -727,7 +740,10 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
             p = int(parent[p])
         junction = p
         base_d = piece_dist[junction] if junction >= 0 else 0.0
-        if piece_dist[tip] - base_d < min_leaf:
+        if piece_dist[tip] - base_d < min_leaf and not (
+                junction >= 0 and is_stem_piece[junction] >= 0
+                and _out_of_column(centroid[tip], stems[is_stem_piece[junction]], axis_tracks[is_stem_piece[junction]],
+                                   2.5 * scale.noise_m + v) >= min_leaf):
             continue
         li = len(leaf_chains)
         owner[chain] = li
