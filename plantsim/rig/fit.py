@@ -55,8 +55,9 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     Checks: (1) the swept radius reaches the LiDAR's near limit
     (``r_max >= lidar_distance_m - range_min_m``: the plant passes through or too
     near the sensor); (2) the top or the bottom of the plant, at the nearest it comes
-    (radius ``r_max``), lies outside the fan (``angle_min``..``angle_max``) or beyond
-    ``range_max_m``; (3) the height is implausible for a plant (units?).
+    (radius ``r_max``), lies outside the fan (``angle_min``..``angle_max``, turned by
+    ``tilt_deg``) or beyond ``range_max_m``; (3) the height is implausible for a plant
+    (units?).
 
     Args:
         plant: placed PlantMesh (turntable frame).
@@ -75,13 +76,14 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
                    f"it passes through or too near the sensor; move the LiDAR to at least "
                    f"{r_max + lidar.range_min_m + 0.05:.3f} m (or use fit_rig: --fit-rig)")
     gap = max(rig.lidar_distance_m - r_max, 1e-6)
-    a_min = math.radians(lidar.angle_min_deg)
+    # The fan's beam elevations: its own angles turned by the boresight's tilt.
+    a_min = math.radians(lidar.angle_min_deg + rig.tilt_deg)
     a_max = a_min + math.radians((lidar.n_beams - 1) * lidar.angle_increment_deg)
     for name, z in (("top", z_hi), ("bottom", z_lo)):
         elev = math.atan2(z - rig.lidar_height_m, gap)
         if not a_min <= elev <= a_max:
             out.append(f"the LiDAR cannot see the plant's {name} (z = {z:.3f} m): it lies "
-                       f"{math.degrees(elev):.1f} deg from the beam at angle 0, outside the fan "
+                       f"{math.degrees(elev):.1f} deg from the horizontal, outside the fan's elevations "
                        f"{math.degrees(a_min):.1f}..{math.degrees(a_max):.1f} deg")
         far = math.hypot(rig.lidar_distance_m + r_max, z - rig.lidar_height_m)
         if far > lidar.range_max_m:
@@ -99,6 +101,11 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     return out
 
 
+# A plant no taller than its swept radius (a rosette) is seen from above, the beam to
+# the top of its axis this far below the horizontal.
+LOOK_DOWN_DEG = 45.0
+
+
 def fit_rig(plant, rig: RigGeometry, lidar) -> tuple[RigGeometry, str]:
     """A rig whose LiDAR sees the whole plant: distance and height from its extent.
 
@@ -110,6 +117,17 @@ def fit_rig(plant, rig: RigGeometry, lidar) -> tuple[RigGeometry, str]:
     plus 5 cm. Other rig fields are kept. Nothing is clipped silently: the
     explanation says what was chosen and why, and whether the far side still
     exceeds ``range_max_m``.
+
+    A flat plant, no taller than its swept radius (a rosette, a lettuce), spreads its
+    leaves near the horizontal: seen from mid-height they are edge-on. Its LiDAR is
+    raised instead, so that the beam to the top of the axis runs ``LOOK_DOWN_DEG``
+    below the horizontal (height ``z_max + distance * tan(45 deg)``), when the fan
+    reaches down to the plant's near bottom from there (else the side mount stays,
+    and the explanation says why). On a 12-leaf rosette (``make_rosette(seed=1)``,
+    7 cm tall, 13 cm radius, ideal 1-degree scans at this distance) the beams touch
+    faces holding 88 % of the leaf area from above against 78 % from mid-height
+    (``tests/test_organs.py``); the leaf area estimate reads 81 % of the truth
+    against 46 % at 0.5 degrees, 69 % against 66 % at 1 degree.
 
     Args:
         plant: placed PlantMesh.
@@ -124,12 +142,26 @@ def fit_rig(plant, rig: RigGeometry, lidar) -> tuple[RigGeometry, str]:
     height = z_lo + half
     gap = max(lidar.range_min_m + 0.05, half / math.tan(math.radians(MAX_ELEVATION_DEG)))
     distance = max(r_max + gap, rig.disk_radius_m + 0.05)
+    reason = (f"gap {gap:.3f} m keeps the top and bottom within {MAX_ELEVATION_DEG:.0f} deg of the "
+              "horizontal")
+    if z_hi - z_lo <= r_max:
+        down_distance = max(r_max + lidar.range_min_m + 0.05, rig.disk_radius_m + 0.05)
+        above = z_hi + down_distance * math.tan(math.radians(LOOK_DOWN_DEG))
+        # The steepest beam: to the plant's bottom where it passes nearest the sensor.
+        steepest = math.degrees(math.atan2(z_lo - above, down_distance - r_max))
+        a_min = lidar.angle_min_deg + rig.tilt_deg
+        if steepest >= a_min:
+            distance, height = down_distance, above
+            reason = (f"the plant is no taller than its swept radius (a rosette?): raised to look down "
+                      f"{LOOK_DOWN_DEG:.0f} deg on the top of its axis, leaves seen from above, not edge-on")
+        else:
+            reason += (f"; the plant is flat, but a LiDAR raised to look down on it would need beams "
+                       f"{steepest:.0f} deg below the horizontal, past the fan's {a_min:.0f} deg")
     fitted = dataclasses.replace(rig, lidar_distance_m=float(distance), lidar_height_m=float(height))
     why = (f"LiDAR at {distance:.3f} m from the axis and {height:.3f} m above the disk "
            f"(was {rig.lidar_distance_m:.3f} m, {rig.lidar_height_m:.3f} m): plant swept radius "
-           f"{r_max:.3f} m, height {z_lo:.3f}..{z_hi:.3f} m; gap {gap:.3f} m keeps the top and bottom "
-           f"within {MAX_ELEVATION_DEG:.0f} deg of the horizontal")
-    far = math.hypot(distance + r_max, half)
+           f"{r_max:.3f} m, height {z_lo:.3f}..{z_hi:.3f} m; {reason}")
+    far = math.hypot(distance + r_max, max(height - z_lo, z_hi - height))
     if far > lidar.range_max_m:
         why += f"; the far side ({far:.3f} m) is beyond range_max_m {lidar.range_max_m:.3f} m"
     return fitted, why
