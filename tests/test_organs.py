@@ -107,6 +107,9 @@ def test_a_flat_plant_is_fitted_a_lidar_that_looks_down_on_it():
     # The beam to the top of the axis runs 45 degrees below the horizontal.
     assert fitted.lidar_height_m == pytest.approx(z_hi + fitted.lidar_distance_m)
     assert rig_fit_warnings(placed, fitted, LIDAR) == []
+    # The default rig (0.15 m up, 0.35 m out) sees it 12 degrees from edge-on: a warning.
+    edge_on = [w for w in rig_fit_warnings(placed, RigGeometry(), LIDAR) if "edge-on" in w]
+    assert len(edge_on) == 1 and "12 deg below the horizontal" in edge_on[0] and "--fit-rig" in edge_on[0]
     # A fan that does not reach down that far keeps the side mount, and says so.
     narrow = dataclasses.replace(LIDAR, angle_min_deg=-30.0, n_beams=int(60 / LIDAR.angle_increment_deg) + 1)
     side, why = fit_rig(placed, RigGeometry(), narrow)

@@ -22,6 +22,9 @@ from plantsim.rig.geometry import RigGeometry
 PLAUSIBLE_HEIGHT_M = (0.02, 2.5)
 # Largest beam elevation (deg) at which the top is still seen at a useful incidence.
 MAX_ELEVATION_DEG = 60.0
+# A plant no taller than its swept radius (a rosette) is seen from above, the beam to
+# the top of its axis this far below the horizontal.
+LOOK_DOWN_DEG = 45.0
 
 
 def _extent(plant) -> tuple[float, float, float]:
@@ -57,7 +60,9 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     near the sensor); (2) the top or the bottom of the plant, at the nearest it comes
     (radius ``r_max``), lies outside the fan (``angle_min``..``angle_max``, turned by
     ``tilt_deg``) or beyond ``range_max_m``; (3) the height is implausible for a plant
-    (units?).
+    (units?); (4) a flat plant (no taller than ``r_max``) is seen less than half of
+    ``LOOK_DOWN_DEG`` below the horizontal at the top of its axis (leaves edge-on);
+    (5) the top is seen more than ``MAX_ELEVATION_DEG`` above it.
 
     Args:
         plant: placed PlantMesh (turntable frame).
@@ -94,16 +99,18 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     if not lo <= height <= hi:
         out.append(f"the plant is {height:.4g} m tall (units {plant.units!r}), outside the "
                    f"plausible {lo}-{hi} m: check the mesh units (mm vs m?)")
+    if height <= r_max:
+        down_deg = math.degrees(math.atan2(rig.lidar_height_m - z_hi, rig.lidar_distance_m))
+        if down_deg < 0.5 * LOOK_DOWN_DEG:
+            out.append(f"the plant is flat ({height:.3f} m tall, swept radius {r_max:.3f} m) and the LiDAR "
+                       f"looks at the top of its axis {down_deg:.0f} deg below the horizontal: its leaves are "
+                       f"seen nearly edge-on; raise the LiDAR (fit_rig, --fit-rig, looks down at "
+                       f"{LOOK_DOWN_DEG:.0f} deg)")
     top_deg = math.degrees(_top_elevation_rad(plant, rig))
     if top_deg > MAX_ELEVATION_DEG:
         out.append(f"the top is seen {top_deg:.0f} deg above the horizontal (> {MAX_ELEVATION_DEG:.0f}): "
                    "grazing beams, sparse top; raise or move back the LiDAR (or use fit_rig: --fit-rig)")
     return out
-
-
-# A plant no taller than its swept radius (a rosette) is seen from above, the beam to
-# the top of its axis this far below the horizontal.
-LOOK_DOWN_DEG = 45.0
 
 
 def fit_rig(plant, rig: RigGeometry, lidar) -> tuple[RigGeometry, str]:
