@@ -451,8 +451,8 @@ class Caster:
         reach = rays_may_reach(self.origins_base, self.dirs_base, turning_bounds(scene, geoms=turning_mask),
                                np.where(fixed.dist_m >= 0, fixed.dist_m, np.inf))
         self._may_hit = np.append(reach, False)
-        # A backend that casts the turning primitives apart (Embree: MuJoCo on the disk) casts
-        # there only the rays that may reach them (a bounding cylinder, rotation-invariant).
+        # A backend that casts the turning primitives apart from the meshes (Embree) casts
+        # them only for the rays that may reach them (a bounding cylinder, rotation-invariant).
         self._may_hit_primitives = None
         bounds = getattr(self.backend, "variant_primitive_bounds" if self._skip_invariant else "primitive_bounds",
                          None)
