@@ -32,6 +32,11 @@ def _extent(plant) -> tuple[float, float, float]:
     return float(np.hypot(v[:, 0], v[:, 1]).max()), float(v[:, 2].min()), float(v[:, 2].max())
 
 
+def _is_flat(r_max: float, z_lo: float, z_hi: float) -> bool:
+    """A plant no taller than its swept radius (a rosette): seen from above, not the side."""
+    return z_hi - z_lo <= r_max
+
+
 # The plant's top: the points within this fraction of its height below the highest one.
 TOP_BAND = 0.05
 
@@ -99,7 +104,7 @@ def rig_fit_warnings(plant, rig: RigGeometry, lidar) -> list[str]:
     if not lo <= height <= hi:
         out.append(f"the plant is {height:.4g} m tall (units {plant.units!r}), outside the "
                    f"plausible {lo}-{hi} m: check the mesh units (mm vs m?)")
-    if height <= r_max:
+    if _is_flat(r_max, z_lo, z_hi):
         down_deg = math.degrees(math.atan2(rig.lidar_height_m - z_hi, rig.lidar_distance_m))
         if down_deg < 0.5 * LOOK_DOWN_DEG:
             out.append(f"the plant is flat ({height:.3f} m tall, swept radius {r_max:.3f} m) and the LiDAR "
@@ -151,7 +156,7 @@ def fit_rig(plant, rig: RigGeometry, lidar) -> tuple[RigGeometry, str]:
     distance = max(r_max + gap, rig.disk_radius_m + 0.05)
     reason = (f"gap {gap:.3f} m keeps the top and bottom within {MAX_ELEVATION_DEG:.0f} deg of the "
               "horizontal")
-    if z_hi - z_lo <= r_max:
+    if _is_flat(r_max, z_lo, z_hi):
         down_distance = max(r_max + lidar.range_min_m + 0.05, rig.disk_radius_m + 0.05)
         above = z_hi + down_distance * math.tan(math.radians(LOOK_DOWN_DEG))
         # The steepest beam: to the plant's bottom where it passes nearest the sensor.
