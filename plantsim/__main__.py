@@ -1,7 +1,5 @@
 """``python -m plantsim``: the command line."""
 
-import sys
+from plantsim.cli import run
 
-from plantsim.cli import main
-
-sys.exit(main())
+run()

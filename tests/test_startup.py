@@ -115,3 +115,31 @@ def test_a_scan_process_runs_blas_on_one_thread(argv, user, expected):
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == str(expected)
+
+
+def test_a_finished_scan_process_ends_with_its_exit_handlers_run_and_its_output_flushed(tmp_path):
+    """`plantsim scan` skips Python's teardown (plantsim.cli.run), not the exit handlers nor the output."""
+    import trimesh
+
+    mesh = tmp_path / "tetra.stl"
+    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0.02], [0, 0.05, 0.04], [0.01, 0.01, 0.2]],
+                    [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]).export(mesh)
+    out = tmp_path / "x.las"
+    code = ("import atexit, sys\n"
+            "atexit.register(lambda: print('exit handlers ran'))\n"
+            "sys.argv = ['plantsim', 'scan', sys.argv[1], '--step-deg', '30', '--sensor', 'ideal', '-o', sys.argv[2]]\n"
+            "from plantsim.cli import run\n"
+            "run()\n"
+            "print('not reached')\n")
+    result = subprocess.run([sys.executable, "-c", code, str(mesh), str(out)], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0].startswith("wrote ") and lines[-1] == "exit handlers ran", result.stdout
+    from plantsim.cloud.export import from_las
+
+    assert len(from_las(out.read_bytes())) > 0
+    # A failed scan ends the same way, with its exit status and message.
+    result = subprocess.run([sys.executable, "-c", code, str(tmp_path / "missing.stl"), str(out)],
+                            capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "mesh file not found" in result.stderr and result.stdout == "exit handlers ran\n"

@@ -30,4 +30,20 @@ _single_threaded_blas_for_a_scan(_sys.argv)
 
 from plantsim.cli.app import main  # noqa: E402  (after the thread setting)
 
-__all__ = ["main"]
+
+def run() -> None:
+    """The ``plantsim`` program (and ``python -m plantsim``): runs the command line, ends the process.
+
+    A finished ``plantsim scan`` ends without Python's teardown
+    (:func:`plantsim.cli.app.exit_without_teardown`); other commands exit as usual.
+    Call :func:`main` instead to stay in the process.
+    """
+    code = main()
+    if command_of(_sys.argv[1:]) == "scan":
+        from plantsim.cli.app import exit_without_teardown
+
+        exit_without_teardown(code)
+    _sys.exit(code)
+
+
+__all__ = ["main", "run"]

