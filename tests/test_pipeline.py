@@ -363,6 +363,35 @@ def test_raw_scan_validates_its_arrays():
                 commanded_rad=np.zeros(1), angle_mode="interpolate", lidar_pose=translation_quat_xyzw(np.eye(4)))
 
 
+@pytest.mark.parametrize("angle_mode", ["interpolate", "line", "commanded"])
+def test_reconstruct_is_the_full_grid_formula_at_the_returns_bit_for_bit(angle_mode):
+    """reconstruct() works on the returns only; its values are those of the whole grid at them."""
+    from plantsim.cloud.reconstruct import base_to_turntable, points_base_from_ranges
+    from plantsim.scan.raw import believed_angles
+
+    rng = np.random.default_rng(5)
+    grid = BeamGrid.of(URG_04LX_UG01)
+    n = 7
+    status = np.where(rng.random((n, grid.n_beams)) < 0.4, BeamStatus.OK, BeamStatus.NO_ECHO).astype(np.uint8)
+    raw = RawScan(grid=grid, line_stamp_ns=np.arange(n, dtype=np.int64) * 100_000_000 + 12_345,
+                  range_m=rng.uniform(0.1, 2.0, (n, grid.n_beams)), status=status, intensity=None,
+                  encoder_stamp_ns=np.sort(rng.integers(0, 800_000_000, 40)),
+                  encoder_angle_rad=np.cumsum(rng.uniform(0, 0.05, 40)), commanded_rad=rng.uniform(0, 6, n),
+                  angle_mode=angle_mode, lidar_pose=translation_quat_xyzw(make_T(rot_z(0.3), [0.4, -0.1, 0.2])),
+                  encoder_offset_rad=0.25)
+    lines, beams = np.nonzero(status == BeamStatus.OK)
+    full = raw.turntable_angle_rad
+    np.testing.assert_array_equal(believed_angles(raw, lines, beams), full[lines, beams])
+    cloud = reconstruct(raw)
+    expected = base_to_turntable(points_base_from_ranges(raw.range_m[lines, beams], raw.beam_angle_rad[beams],
+                                                         raw.T_base_lidar), full[lines, beams])
+    np.testing.assert_array_equal(cloud.points_turntable, expected)
+    np.testing.assert_array_equal(cloud.turntable_angle_rad, full[lines, beams])
+    np.testing.assert_array_equal(cloud.time_s, raw.time_s[lines, beams])
+    with pytest.raises(ValueError, match="both lines and beams"):
+        believed_angles(raw, lines)
+
+
 def test_dynamics_settings_reach_the_physics(box):
     dyn = TurntableDynamics(jitter=JitterConfig(backlash_deg=0.2))
     result = run_scan(RunConfig(sensor="ideal", scan=StepScan(step_deg=90),

@@ -17,7 +17,7 @@ import dataclasses
 import numpy as np
 
 from plantsim.rig.geometry import beam_dirs_lidar
-from plantsim.scan.raw import RawScan
+from plantsim.scan.raw import RawScan, believed_angles
 from plantsim.rig.scene import HitClass
 from plantsim.sensor.spec import BeamStatus
 
@@ -74,8 +74,12 @@ def points_base_from_ranges(range_m: np.ndarray, beam_angle_rad: np.ndarray,
     Returns:
       points_base: (n, 3) float64 metres.
     """
-    points_lidar = range_m[:, None] * beam_dirs_lidar(beam_angle_rad)
-    return points_lidar @ T_base_lidar[:3, :3].T + T_base_lidar[:3, 3]
+    return points_base_from_dirs(range_m, beam_dirs_lidar(beam_angle_rad), T_base_lidar)
+
+
+def points_base_from_dirs(range_m: np.ndarray, dirs_lidar: np.ndarray, T_base_lidar: np.ndarray) -> np.ndarray:
+    """:func:`points_base_from_ranges` given the beams' unit directions (n, 3), lidar frame."""
+    return (range_m[:, None] * dirs_lidar) @ T_base_lidar[:3, :3].T + T_base_lidar[:3, 3]
 
 
 def base_to_turntable(points_base: np.ndarray, turntable_angle_rad: np.ndarray) -> np.ndarray:
@@ -116,8 +120,12 @@ def reconstruct(raw: RawScan, *, intensity: np.ndarray | None = None) -> PointCl
     ok = raw.status == BeamStatus.OK
     lines, beams = np.nonzero(ok)
     range_m = raw.range_m[lines, beams]
-    angle = raw.turntable_angle_rad[lines, beams]
-    points_base = points_base_from_ranges(range_m, raw.beam_angle_rad[beams], raw.T_base_lidar)
+    # Per return only, not per beam of the grid (most beams miss): the same values as
+    # raw.turntable_angle_rad[lines, beams], raw.time_s[lines, beams] and
+    # beam_dirs_lidar(raw.beam_angle_rad[beams]), bit for bit.
+    angle = believed_angles(raw, lines, beams)
+    dirs_lidar = beam_dirs_lidar(raw.beam_angle_rad)[beams]
+    points_base = points_base_from_dirs(range_m, dirs_lidar, raw.T_base_lidar)
     return PointCloud(
         points_turntable=base_to_turntable(points_base, angle),
         hit_class=raw.hit_class[lines, beams],
@@ -125,6 +133,6 @@ def reconstruct(raw: RawScan, *, intensity: np.ndarray | None = None) -> PointCl
         scan_index=lines.astype(np.uint32),
         turntable_angle_rad=angle,
         range_m=range_m,
-        time_s=raw.time_s[lines, beams],
+        time_s=raw.line_time_s[lines] + raw.grid.beam_offsets_s()[beams],
         intensity=None if intensity is None else intensity[lines, beams].astype(np.float32),
     )

@@ -204,16 +204,32 @@ class RawScan:
         return dataclasses.replace(self, **changes)
 
 
-def believed_angles(raw: RawScan) -> np.ndarray:
+def believed_angles(raw: RawScan, lines: np.ndarray | None = None, beams: np.ndarray | None = None
+                    ) -> np.ndarray:
     """What the rig believes the turntable angle of every beam was (see :data:`ANGLE_MODES`).
 
+    Args:
+      raw: the raw record.
+      lines, beams: (k,) int indices of the beams wanted (e.g. ``np.nonzero`` of the
+        returns); None for every beam. The values are those of the full grid at
+        those beams, bit for bit, at the cost of the beams asked for.
+
     Returns:
-      (n_lines, n_beams) float64, radians.
+      (n_lines, n_beams) float64, radians; or (k,) for ``lines, beams``.
     """
-    shape = raw.range_m.shape
+    if (lines is None) != (beams is None):
+        raise ValueError("give both lines and beams, or neither")
+    offset = raw.encoder_offset_rad
     if raw.angle_mode == "commanded":
-        return np.broadcast_to((raw.commanded_rad - raw.encoder_offset_rad)[:, None], shape).copy()
-    t_read, angle = raw.encoder_time_s, raw.encoder_angle_rad - raw.encoder_offset_rad
-    if raw.angle_mode == "line":
-        return np.broadcast_to(np.interp(raw.line_time_s, t_read, angle)[:, None], shape).copy()
-    return np.interp(raw.time_s, t_read, angle)
+        per_line = raw.commanded_rad - offset
+    else:
+        t_read, angle = raw.encoder_time_s, raw.encoder_angle_rad - offset
+        if raw.angle_mode == "line":
+            per_line = np.interp(raw.line_time_s, t_read, angle)
+        elif lines is None:
+            return np.interp(raw.time_s, t_read, angle)
+        else:
+            return np.interp(raw.line_time_s[lines] + raw.grid.beam_offsets_s()[beams], t_read, angle)
+    if lines is None:
+        return np.broadcast_to(per_line[:, None], raw.range_m.shape).copy()
+    return per_line[lines]
