@@ -239,6 +239,20 @@ def test_embree_mesh_input_builds_the_scene_of_plain_arrays():
     np.testing.assert_array_equal(fast.run(o, d, output=1)["tfar"], plain.run(o, d, output=1)["tfar"])
 
 
+def test_building_the_embree_scene_leaves_the_cyclic_collector_as_it_found_it():
+    import gc
+
+    scene = build_scene(RigGeometry(), plant_from_arrays(np.asarray(shapes().vertices), np.asarray(shapes().faces)))
+    was = gc.isenabled()
+    try:
+        for enabled in (True, False):
+            gc.enable() if enabled else gc.disable()
+            embree.EmbreeBackend(scene, nthread=1)
+            assert gc.isenabled() is enabled
+    finally:
+        gc.enable() if was else gc.disable()
+
+
 def _geom(type_, pos=(0.0, 0.0, -0.005), R=np.eye(3)):
     from plantsim.rig.layout import Geom
 

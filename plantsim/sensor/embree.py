@@ -39,6 +39,7 @@ prints rays/s of both backends.
 from __future__ import annotations
 
 import copy
+import gc
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -110,7 +111,15 @@ class EmbreeBackend:
 
         self.triangles = vertices[faces]
         self._embree = rtcore_scene.EmbreeScene()
-        TriangleMesh(scene=self._embree, **embreex_mesh_input(vertices, faces))
+        # The hand-off makes ~3 Python objects a face (none in a cycle); with the cyclic
+        # collector paused it is not walked every 700 of them (~4 ms of 0.35 s at 70k faces).
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            TriangleMesh(scene=self._embree, **embreex_mesh_input(vertices, faces))
+        finally:
+            if collecting:
+                gc.enable()
 
     def _init_from_layout(self, scene: Scene) -> None:
         """The plant's own triangles for Embree, the rig's primitives analytic: no MuJoCo."""
