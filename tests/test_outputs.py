@@ -106,6 +106,23 @@ def test_a_full_disk_names_the_path_and_changes_nothing(plant, tmp_path, monkeyp
     assert snapshot(tmp_path) == before
 
 
+def test_a_sidecar_that_fails_while_the_cloud_is_written_changes_nothing(plant, tmp_path, monkeypatch):
+    """The cloud is staged on a worker thread beside the sidecar's making; a failure there waits for it."""
+    from plantsim.scan import pipeline
+
+    write_result(result_for(plant, tmp_path, seed=0, raw=False))
+    before = snapshot(tmp_path)
+
+    def broken(result):
+        raise RuntimeError("sidecar failed")
+
+    monkeypatch.setattr(pipeline, "sidecar", broken)
+    with pytest.raises(RuntimeError, match="sidecar failed"):
+        write_result(result_for(plant, tmp_path, seed=1, raw=False))
+    assert snapshot(tmp_path) == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
 def test_ctrl_c_during_the_swap_is_held_until_all_outputs_are_in(plant, tmp_path, monkeypatch):
     write_result(result_for(plant, tmp_path, seed=0))
     new = result_for(plant, tmp_path, seed=1)

@@ -590,6 +590,7 @@ def write_result(result: ScanResult, path: str | Path | None = None, *, keep_jou
     removed only once all are in place, unless ``keep_journal``.
     """
     import json
+    from concurrent.futures import ThreadPoolExecutor
 
     from plantsim.cloud.export import _json_default, encode_cloud, sidecar_path
     from plantsim.cloud.outputs import OutputSet
@@ -608,13 +609,18 @@ def write_result(result: ScanResult, path: str | Path | None = None, *, keep_jou
         t = time.perf_counter()
         data = encode_cloud(path, result.cloud)
         result.timings_s["encode"] = time.perf_counter() - t
-        outputs.stage_bytes(path, data)
-        side = sidecar(result)
-        side["output"] = str(path)
-        if result.journal_path is not None:
-            side["journal"]["kept"] = keep_journal
-        outputs.stage_bytes(sidecar_path(path),
-                            (json.dumps(side, indent=2, default=_json_default) + "\n").encode("utf-8"))
+        # The cloud goes to disk (and fsync) beside the making of the sidecar: the one
+        # waits on the disk, the other on Python (~5 ms of a 0.35 s scan). Its error, if
+        # any, is raised here; the staged files are then discarded as usual.
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            cloud_staged = pool.submit(outputs.stage_bytes, path, data)
+            side = sidecar(result)
+            side["output"] = str(path)
+            if result.journal_path is not None:
+                side["journal"]["kept"] = keep_journal
+            text = json.dumps(side, indent=2, default=_json_default) + "\n"
+            cloud_staged.result()
+        outputs.stage_bytes(sidecar_path(path), text.encode("utf-8"))
         outputs.commit()
     if result.journal_path is not None and not keep_journal:
         result.journal_path.unlink(missing_ok=True)
