@@ -143,3 +143,22 @@ def test_a_finished_scan_process_ends_with_its_exit_handlers_run_and_its_output_
                             capture_output=True, text=True)
     assert result.returncode == 2
     assert "mesh file not found" in result.stderr and result.stdout == "exit handlers ran\n"
+
+
+def test_only_a_scan_written_as_las_or_laz_loads_laspy(tmp_path):
+    """laspy is imported ahead, on a thread, for a LAS output; a PLY scan never loads it."""
+    import trimesh
+
+    mesh = tmp_path / "tetra.stl"
+    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0.02], [0, 0.05, 0.04], [0.01, 0.01, 0.2]],
+                    [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]).export(mesh)
+    code = ("import sys\n"
+            "from plantsim.cli.app import main\n"
+            "sys.argv = ['plantsim', 'scan', sys.argv[1], '--step-deg', '30', '--sensor', 'ideal', '-o', sys.argv[2]]\n"
+            "assert main() == 0\n"
+            "print('laspy' in sys.modules)\n")
+    for name, loaded in (("x.ply", "False"), ("x.las", "True")):
+        result = subprocess.run([sys.executable, "-c", code, str(mesh), str(tmp_path / name)],
+                                capture_output=True, text=True)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.splitlines()[-1] == loaded, (name, result.stdout)

@@ -92,6 +92,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
     if _opt(args, "fit_rig"):
         config, plant, why = fit_rig_to_plant(config)
         print(f"--fit-rig: {why}")
+    _import_writer_meanwhile(config.output.path)
     progress, close = _progress_bar("scan")
     try:
         result = run_scan(config, plant=plant, progress=progress)
@@ -113,6 +114,30 @@ def cmd_scan(args: argparse.Namespace) -> int:
         if not _opt(args, "no_pictures"):
             print(_error_picture_line(result, f"{path}.error.png"))
     return 0
+
+
+def _import_writer_meanwhile(output_path: str) -> None:
+    """Imports laspy on a daemon thread while the scan reads its plant (a LAS or LAZ output only).
+
+    laspy's import (~16 ms) is Python executing module code, and it is needed only
+    at the end; the plant's loading is mostly numpy, which lets go of the interpreter
+    for its sorts and copies, so the import runs largely on the second core: the ideal
+    seed-maize scan process went from 0.343 to 0.333 s (median of 15, alternating).
+    The main thread's own ``import laspy`` later waits for it (or repeats its error,
+    were it to fail).
+    """
+    import threading
+
+    if os.path.splitext(output_path)[1].lower() not in (".las", ".laz") or "laspy" in sys.modules:
+        return
+
+    def work():
+        try:
+            import laspy  # noqa: F401
+        except Exception:  # the writer's own import says what is wrong, in the main thread
+            pass
+
+    threading.Thread(target=work, name="plantsim-import-laspy", daemon=True).start()
 
 
 def fit_rig_to_plant(config):
