@@ -392,6 +392,34 @@ def test_reconstruct_is_the_full_grid_formula_at_the_returns_bit_for_bit(angle_m
         believed_angles(raw, lines)
 
 
+def test_raw_counts_and_the_angle_error_metric_are_their_full_grid_definitions():
+    from plantsim.evaluation.angle_error import angle_error_displacement
+    from plantsim.rig.scene import HitClass
+    from plantsim.scan.pipeline import angle_error_metric
+
+    rng = np.random.default_rng(8)
+    grid = BeamGrid.of(URG_04LX_UG01)
+    n = 6
+    shape = (n, grid.n_beams)
+    status = rng.choice([int(s) for s in BeamStatus], shape).astype(np.uint8)
+    hit_class = rng.choice([int(c) for c in HitClass], shape).astype(np.uint8)
+    t_ns = np.arange(0, 700_000_000, 20_000_000, dtype=np.int64)
+    raw = RawScan(grid=grid, line_stamp_ns=np.arange(n, dtype=np.int64) * 100_000_000, range_m=rng.uniform(0.1, 2, shape),
+                  status=status, intensity=None, encoder_stamp_ns=t_ns, encoder_angle_rad=0.01 * np.arange(len(t_ns)),
+                  commanded_rad=np.zeros(n), angle_mode="interpolate", hit_class=hit_class,
+                  true_turntable_angle_rad=rng.uniform(0, 0.1, shape), lidar_pose=translation_quat_xyzw(np.eye(4)))
+    counts = raw.counts()
+    ok = status == BeamStatus.OK
+    assert counts["by_status"] == {s.name.lower(): int((status == s).sum()) for s in BeamStatus}
+    assert counts["returns_by_class"] == {c.name.lower(): int((ok & (hit_class == c)).sum())
+                                          for c in HitClass if c != HitClass.NONE}
+    assert counts["returns"] == int(ok.sum()) and counts["beams"] == status.size
+    want = angle_error_displacement(raw.range_m, raw.beam_angle_rad, raw.T_base_lidar, raw.true_turntable_angle_rad,
+                                    raw.turntable_angle_rad, valid=ok & (hit_class == HitClass.PLANT))
+    assert want["n_points"] > 100 and want["displacement_max_m"] > 0
+    assert angle_error_metric(raw) == want
+
+
 def test_dynamics_settings_reach_the_physics(box):
     dyn = TurntableDynamics(jitter=JitterConfig(backlash_deg=0.2))
     result = run_scan(RunConfig(sensor="ideal", scan=StepScan(step_deg=90),

@@ -35,7 +35,7 @@ from plantsim.rig.fit import rig_fit_warnings
 from plantsim.rig.scene import Scene, build_scene
 from plantsim.scan.config import RunConfig
 from plantsim.scan.plan import ScanPlan, plan_scan
-from plantsim.scan.raw import BeamGrid, RawScan, lidar_pose_of, ns_to_s
+from plantsim.scan.raw import BeamGrid, RawScan, believed_angles, lidar_pose_of, ns_to_s
 from plantsim.sensor.casting import make_backend
 from plantsim.scan.schedule import StepScan
 from plantsim.sensor.lidar import SimulatedLidar
@@ -385,9 +385,10 @@ def angle_error_metric(raw: RawScan) -> dict:
         return {}
     from plantsim.evaluation.angle_error import angle_error_displacement
 
-    valid = (raw.status == 0) & (raw.hit_class == 1)  # BeamStatus.OK on HitClass.PLANT
-    return angle_error_displacement(raw.range_m, raw.beam_angle_rad, raw.T_base_lidar, raw.true_turntable_angle_rad,
-                                    raw.turntable_angle_rad, valid=valid)
+    # BeamStatus.OK on HitClass.PLANT; the angles of those beams only (most of the grid misses).
+    lines, beams = np.nonzero((raw.status == 0) & (raw.hit_class == 1))
+    return angle_error_displacement(raw.range_m[lines, beams], raw.beam_angle_rad[beams], raw.T_base_lidar,
+                                    raw.true_turntable_angle_rad[lines, beams], believed_angles(raw, lines, beams))
 
 
 def _check_types(config, plant, turntable) -> None:

@@ -192,12 +192,14 @@ class RawScan:
     def counts(self) -> dict:
         """Beams by status and returns by hit class, for the sidecar."""
         ok = self.status == BeamStatus.OK
+        # One pass each (codes are small non-negative ints); codes outside the enums are not counted.
+        by_status = np.bincount(self.status.ravel(), minlength=max(BeamStatus) + 1)
+        by_class = np.bincount(self.hit_class[ok], minlength=max(HitClass) + 1)
         return {
             "beams": int(self.status.size),
             "returns": int(ok.sum()),
-            "by_status": {s.name.lower(): int((self.status == s).sum()) for s in BeamStatus},
-            "returns_by_class": {c.name.lower(): int((ok & (self.hit_class == c)).sum())
-                                 for c in HitClass if c != HitClass.NONE},
+            "by_status": {s.name.lower(): int(by_status[s]) for s in BeamStatus},
+            "returns_by_class": {c.name.lower(): int(by_class[c]) for c in HitClass if c != HitClass.NONE},
         }
 
     def replace(self, **changes) -> "RawScan":
