@@ -59,6 +59,25 @@ def test_robust_height_ignores_one_stray_point():
     assert traits.robust_height(stray) == pytest.approx(0.3, abs=0.01)
 
 
+def test_robust_height_asks_more_points_of_a_noisy_top():
+    """Noise-free: 2 points make a voxel; noise near the spacing: 4, which reads the top lower."""
+    def sheet_on_a_stem(sigma, seed):
+        rng = np.random.default_rng(seed)
+        stem = np.column_stack([0.002 * rng.standard_normal((3000, 2)), rng.uniform(0, 0.2, 3000)])
+        sheet = np.column_stack([rng.uniform(-0.15, 0.15, (12000, 2)), 0.2 + sigma * rng.standard_normal(12000)])
+        return np.vstack([sheet, stem])
+
+    clean = sheet_on_a_stem(0.0, 0)
+    assert traits.top_voxel_min_points(segmentation.estimate_scale(clean)) == 2
+    assert traits.robust_height(clean) == pytest.approx(0.2, abs=1e-9)
+    gained = []
+    for seed in range(4):
+        noisy = sheet_on_a_stem(0.003, seed)  # noise 3 mm, spacing ~3.8 mm
+        assert traits.top_voxel_min_points(segmentation.estimate_scale(noisy)) == 4
+        gained.append(traits.robust_height(noisy, min_points=2) - traits.robust_height(noisy))
+    assert min(gained) >= 0 and np.mean(gained) > 0.001  # ~2 mm of the ~8 mm the noise adds
+
+
 def test_scale_follows_the_spacing():
     g = np.arange(0, 0.2, 0.002)
     x, y = np.meshgrid(g, g)
