@@ -41,6 +41,16 @@ def test_unique_rows_is_numpys_unique_with_signed_zeros_and_extremes(float32_exa
         np.testing.assert_array_equal(np.signbit(unique), np.signbit(reference))
 
 
+def tetra_stl(tmp_path):
+    """A 20 cm tetrahedron, the smallest plant a scan accepts, as an STL file."""
+    import trimesh
+
+    mesh = tmp_path / "tetra.stl"
+    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0.02], [0, 0.05, 0.04], [0.01, 0.01, 0.2]],
+                    [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]).export(mesh)
+    return mesh
+
+
 def test_unique_rows_of_an_empty_array():
     unique, inverse = unique_rows(np.zeros((0, 3)))
     assert unique.shape == (0, 3) and inverse.shape == (0,)
@@ -75,11 +85,7 @@ def test_the_full_parser_still_has_every_command():
 def test_a_kinematic_scan_cast_with_embree_never_loads_mujoco(tmp_path):
     """The whole `plantsim scan` of a small plant, in its own process: MuJoCo's code never runs."""
     pytest.importorskip("embreex", reason="without embreex the scan casts with MuJoCo")
-    mesh = tmp_path / "tetra.stl"
-    import trimesh
-
-    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0.02], [0, 0.05, 0.04], [0.01, 0.01, 0.2]],
-                    [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]).export(mesh)
+    mesh = tetra_stl(tmp_path)
     out = tmp_path / "x.las"
     code = ("import sys\n"
             "from plantsim.cli.app import main\n"
@@ -119,11 +125,7 @@ def test_a_scan_process_runs_blas_on_one_thread(argv, user, expected):
 
 def test_a_finished_scan_process_ends_with_its_exit_handlers_run_and_its_output_flushed(tmp_path):
     """`plantsim scan` skips Python's teardown (plantsim.cli.run), not the exit handlers nor the output."""
-    import trimesh
-
-    mesh = tmp_path / "tetra.stl"
-    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0.02], [0, 0.05, 0.04], [0.01, 0.01, 0.2]],
-                    [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]).export(mesh)
+    mesh = tetra_stl(tmp_path)
     out = tmp_path / "x.las"
     code = ("import atexit, sys\n"
             "atexit.register(lambda: print('exit handlers ran'))\n"
@@ -147,11 +149,7 @@ def test_a_finished_scan_process_ends_with_its_exit_handlers_run_and_its_output_
 
 def test_only_a_scan_written_as_las_or_laz_loads_laspy(tmp_path):
     """laspy is imported ahead, on a thread, for a LAS output; a PLY scan never loads it."""
-    import trimesh
-
-    mesh = tmp_path / "tetra.stl"
-    trimesh.Trimesh([[0, 0, 0], [0.05, 0, 0.02], [0, 0.05, 0.04], [0.01, 0.01, 0.2]],
-                    [[0, 1, 2], [0, 1, 3], [1, 2, 3], [0, 2, 3]]).export(mesh)
+    mesh = tetra_stl(tmp_path)
     code = ("import sys\n"
             "from plantsim.cli.app import main\n"
             "sys.argv = ['plantsim', 'scan', sys.argv[1], '--step-deg', '30', '--sensor', 'ideal', '-o', sys.argv[2]]\n"
