@@ -133,6 +133,6 @@ def reconstruct(raw: RawScan, *, intensity: np.ndarray | None = None) -> PointCl
         scan_index=lines.astype(np.uint32),
         turntable_angle_rad=angle,
         range_m=range_m,
-        time_s=raw.line_time_s[lines] + raw.grid.beam_offsets_s()[beams],
+        time_s=raw.time_s_at(lines, beams),
         intensity=None if intensity is None else intensity[lines, beams].astype(np.float32),
     )

@@ -180,6 +180,10 @@ class RawScan:
         """(n_lines, n_beams) float64: each beam's time, s since the scan's start."""
         return self.line_time_s[:, None] + self.grid.beam_offsets_s()[None, :]
 
+    def time_s_at(self, lines: np.ndarray, beams: np.ndarray) -> np.ndarray:
+        """(k,) float64: ``time_s[lines, beams]``, bit for bit, computed for those beams only."""
+        return self.line_time_s[lines] + self.grid.beam_offsets_s()[beams]
+
     @property
     def encoder_time_s(self) -> np.ndarray:
         return ns_to_s(self.encoder_stamp_ns)
@@ -231,7 +235,7 @@ def believed_angles(raw: RawScan, lines: np.ndarray | None = None, beams: np.nda
         elif lines is None:
             return np.interp(raw.time_s, t_read, angle)
         else:
-            return np.interp(raw.line_time_s[lines] + raw.grid.beam_offsets_s()[beams], t_read, angle)
+            return np.interp(raw.time_s_at(lines, beams), t_read, angle)
     if lines is None:
         return np.broadcast_to(per_line[:, None], raw.range_m.shape).copy()
     return per_line[lines]
