@@ -769,7 +769,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     seg = segmentation.segment_organs(
         above, settings=segmentation.SegmentationSettings(
             base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter))
-    height = robust_height(above, base_z=s.base_z, cell=seg.scale.voxel_m, kept=seg.kept, scale=seg.scale)
+    height = robust_height(above, base_z=s.base_z, kept=seg.kept, scale=seg.scale)
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points)
                   for i, st in enumerate(seg.stems))
