@@ -179,6 +179,28 @@ def test_stacked_leaves_and_leaflets_side_by_side_stay_apart():
         organs.append(_strip(rng, 0.18, 0.03, 7_000, origin=(-0.002, 0.035 * side, 0.2)))
     assert traits.extract_traits(_stem_with(rng, *organs, height=0.3)).leaf_count == 2
 
+def test_a_stem_split_lengthwise_by_a_hidden_band_is_one_stem_to_its_top():
+    # A leaf wrapped round a stem hides two bands of it from every view over a
+    # stretch: there the stem's level sets are two half-rings side by side. The
+    # stem goes on up through both; its top is its own (0.4 m), and no "leaf" is
+    # made of the stem's upper part (a maize read 10 leaves for 9, its longest
+    # leaf 0.48 m for 0.39 m and its stem 0.24 m for 0.42 m).
+    rng = np.random.default_rng(9)
+    r = 0.006
+    stem = _cylinder_cloud(rng, (0.0, 0.0), r, 0.4, 30_000)
+    azimuth = np.arctan2(stem[:, 1], stem[:, 0])
+    hidden = ((stem[:, 2] > 0.15) & (stem[:, 2] < 0.25)
+              & (np.abs(np.sin(azimuth)) < np.sin(np.radians(40.0))))
+    stem = stem[~hidden]
+    leaf_a = _strip(rng, 0.20, 0.03, 6_000, origin=(0.0, r, 0.12), direction=(0.0, 1.0, 0.0))
+    leaf_b = _strip(rng, 0.20, 0.03, 6_000, origin=(0.0, -r, 0.30), direction=(0.0, -1.0, 0.0))
+    t = traits.extract_traits(np.vstack([stem, leaf_a, leaf_b]))
+    assert t.stem_count == 1
+    assert t.stem_height_m == pytest.approx(0.4, abs=0.01)
+    assert t.leaf_count == 2
+    assert max(t.leaf_lengths_m) == pytest.approx(0.20, rel=0.10)
+
+
 def _beam_noise(rng, pts, sigma, lidar_distance=0.35, lidar_height=0.15):
     """Range noise as a turntable LiDAR makes it: every beam lies in a vertical plane
     through the axis (the fan), so a point moves along its own azimuth, rising or

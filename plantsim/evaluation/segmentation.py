@@ -28,7 +28,11 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    the Dijkstra predecessor of its nearest member. The skeleton is a tree.
 6. Organs: each stem follows the skeleton up from its root, always to the child
    whose centroid stays nearest the stem's (extrapolated) axis, while it stays
-   within a few radii of it. Every other tip whose branch (tip to the junction
+   within a few radii of it; a child lying wholly inside the stem's column (its
+   radius plus the noise band and a voxel) is stem too, and the walk goes on from
+   it: where a leaf wrapped round the stem hides bands of it from every view, the
+   stem's level sets are half-rings side by side, and the stem's top lies above
+   one of them. Every other tip whose branch (tip to the junction
    below it) is longer than ``min_leaf_length`` is a leaf tip, and so is a tip
    hanging from a stem piece that lies that far out of the stem's column (its
    radius plus the noise band and a voxel): a noisy stem fills a column several
@@ -695,6 +699,9 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     min_leaf = max(s.min_leaf_fraction * height, 2.0 * bin_w)
 
     # Stems: follow the skeleton up from each stem's root piece.
+    by_piece = np.argsort(piece, kind="stable")
+    piece_start = np.r_[0, np.cumsum(np.bincount(piece, minlength=n_pieces))]
+    column_margin = 2.5 * scale.noise_m + v
     is_stem_piece = np.full(n_pieces, -1, dtype=np.int64)
     stem_tops = []
     axis_tracks: list[np.ndarray] = []  # per stem, (k, 3): z, x, y of its axis
@@ -706,26 +713,45 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
             stem_tops.append([c0[0], c0[1], s.base_z])
             axis_tracks.append(np.array([[s.base_z, c0[0], c0[1]]]))
             continue
-        cur = int(root_pieces[np.argmin(centroid[root_pieces, 2])])
-        axis_xy = c0.copy()
         reach = max(1.5 * st.diameter_m, 3.0 * v)
+        column = 0.5 * st.diameter_m + column_margin
         track = [(s.base_z, c0[0], c0[1])]
-        while True:
-            is_stem_piece[cur] = si
+        start = int(root_pieces[np.argmin(centroid[root_pieces, 2])])
+        is_stem_piece[start] = si
+        top = start
+        walks = [(start, c0.copy())]  # pieces to walk on from, each with its axis
+        while walks:
+            cur, axis_xy = walks.pop()
+            if centroid[cur, 2] > centroid[top, 2]:
+                top = cur
             kids = [k for k in children[cur] if is_stem_piece[k] < 0]
             if not kids:
-                break
+                continue
             # The axis follows a leaning stem, but only through compact pieces: a
             # piece holding a leaf's base has its centroid pulled off the axis.
             off = [float(np.linalg.norm(centroid[k, :2] - axis_xy)) for k in kids]
             best = int(np.argmin(off))
-            if off[best] > reach or centroid[kids[best], 2] <= centroid[cur, 2] - bin_w:
-                break
-            if spread[kids[best]] <= reach:
-                axis_xy = centroid[kids[best], :2].copy()
-                track.append((float(centroid[kids[best], 2]), axis_xy[0], axis_xy[1]))
-            cur = kids[best]
-        stem_tops.append(centroid[cur].tolist())
+            if off[best] <= reach and centroid[kids[best], 2] > centroid[cur, 2] - bin_w:
+                nxt = axis_xy
+                if spread[kids[best]] <= reach:
+                    nxt = centroid[kids[best], :2].copy()
+                    track.append((float(centroid[kids[best], 2]), nxt[0], nxt[1]))
+                is_stem_piece[kids[best]] = si
+                walks.append((kids[best], nxt))
+            # A leaf wrapped round the stem, or one lying against it, hides a band of
+            # the stem from every view: the stem's level sets fall into pieces side by
+            # side (halves of its cross-section), each going on up. Every piece lying
+            # wholly inside the stem's column is stem, and the walk goes on from each;
+            # a leaf's base reaches out of the column.
+            for k in kids:
+                if is_stem_piece[k] >= 0:
+                    continue
+                members = nodes[by_piece[piece_start[k]:piece_start[k + 1]], :2]
+                if (centroid[k, 2] > centroid[cur, 2] - bin_w
+                        and np.hypot(*(members - axis_xy).T).max() <= column):
+                    is_stem_piece[k] = si
+                    walks.append((k, axis_xy))
+        stem_tops.append(centroid[top].tolist())
         axis_tracks.append(np.array(track))
 
     # Leaves: tips with a long enough branch, walked down to the stem.
