@@ -701,6 +701,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     # Stems: follow the skeleton up from each stem's root piece.
     by_piece = np.argsort(piece, kind="stable")
     piece_start = np.r_[0, np.cumsum(np.bincount(piece, minlength=n_pieces))]
+    # The column a stem's points fill round its axis: its radius plus the noise band and a voxel.
     column_margin = 2.5 * scale.noise_m + v
     is_stem_piece = np.full(n_pieces, -1, dtype=np.int64)
     stem_tops = []
@@ -769,7 +770,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
         if piece_dist[tip] - base_d < min_leaf and not (
                 junction >= 0 and is_stem_piece[junction] >= 0
                 and _out_of_column(centroid[tip], stems[is_stem_piece[junction]], axis_tracks[is_stem_piece[junction]],
-                                   2.5 * scale.noise_m + v) >= min_leaf):
+                                   column_margin) >= min_leaf):
             continue
         li = len(leaf_chains)
         owner[chain] = li
@@ -791,7 +792,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     leaf_label = np.where(stem_label >= 0, -1, owner[point_piece])
     if len(stems) and len(leaf_chains):
         stem_label, leaf_label = _release_leaf_bases(
-            pts, stem_label, leaf_label, stems, axis_tracks, margin=2.5 * scale.noise_m + v,
+            pts, stem_label, leaf_label, stems, axis_tracks, margin=column_margin,
             link=2 * s.link_factor * v + 8 * scale.noise_m)
     midribs = [centroid[np.array(ch)] for ch in leaf_chains]
     leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)
