@@ -462,12 +462,18 @@ def _graph(nodes: np.ndarray, link: float) -> sparse.csr_matrix:
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m)).tocsr()
 
 
+def _axis_xy_at(track: np.ndarray, z: Any) -> np.ndarray:
+    """The x, y of a stem's tracked axis (``track``: rows z, x, y) at height(s) ``z``,
+    interpolated in z and held constant beyond the track's ends: (2,) or (k, 2)."""
+    tr = track[np.argsort(track[:, 0], kind="stable")]
+    return np.stack([np.interp(z, tr[:, 0], tr[:, 1]), np.interp(z, tr[:, 0], tr[:, 2])], axis=-1)
+
+
 def _out_of_column(point: np.ndarray, stem: StemBase, track: np.ndarray, margin: float) -> float:
     """How far a point lies out of a stem's column: its horizontal distance from the
     axis the stem's walk tracked (at the point's height) less the stem's radius and
     ``margin`` (noise and a voxel: the column a noisy stem's points fill)."""
-    tr = track[np.argsort(track[:, 0], kind="stable")]
-    axis = np.array([np.interp(point[2], tr[:, 0], tr[:, 1]), np.interp(point[2], tr[:, 0], tr[:, 2])])
+    axis = _axis_xy_at(track, point[2])
     return float(np.hypot(*(point[:2] - axis)) - 0.5 * stem.diameter_m - margin)
 
 
@@ -491,9 +497,7 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
         m = np.flatnonzero(stem_label == si)
         if len(m) == 0:
             continue
-        tr = tracks[si][np.argsort(tracks[si][:, 0], kind="stable")]
-        axis_xy = np.column_stack([np.interp(pts[m, 2], tr[:, 0], tr[:, 1]),
-                                   np.interp(pts[m, 2], tr[:, 0], tr[:, 2])])
+        axis_xy = _axis_xy_at(tracks[si], pts[m, 2])
         r = np.hypot(*(pts[m, :2] - axis_xy).T)
         off[m[r > 0.5 * st.diameter_m + margin]] = True
     leaf_pts = np.flatnonzero(leaf_label >= 0)
