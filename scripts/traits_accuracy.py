@@ -2,7 +2,7 @@
 
 Scans maize, wheat (tillers) and a rosette with the pipeline and prints, per plant,
 estimate/truth (error) for height, leaf count and leaf area, with the issue's targets,
-then the stems found and their mean diameter:
+then the stems found and their mean diameter (marked when noise hides it):
 ideal 0.5 deg: 2 %, 20 %, 20 %; realistic 1 deg: 5 %, 40 %, 35 %.
 
     python scripts/traits_accuracy.py            # both settings
@@ -58,7 +58,8 @@ def main() -> None:
                   f"leaves {_err(est.leaf_count, len(tr['leaves']), t_n)}  "
                   f"area {_err(est.leaf_area_m2, tr['leaf_area_m2'], t_a)}  "
                   f"stems {est.stem_count}/{len(tr['stems'])} "
-                  f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm  "
+                  f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm"
+                  f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}  "
                   f"{time.perf_counter() - t0:.1f} s", flush=True)
 
 

@@ -241,6 +241,9 @@ class StemBase:
         rms_residual_m: median radial RMS residual of those fits, metres.
         n_slices: slices the stem was found in.
         n_points: points in those slices.
+        diameter_resolved: False when most of those slices were noise-dominated (no
+            plausible circle, or one whose residual is over a quarter of its radius):
+            the diameter is then the noisy column's width, an upper bound on the stem's.
     """
 
     center_xy_m: tuple[float, float]
@@ -248,6 +251,7 @@ class StemBase:
     rms_residual_m: float
     n_slices: int
     n_points: int
+    diameter_resolved: bool = True
 
 
 def _xy_clusters(xy: np.ndarray, link: float, min_points: int) -> list[np.ndarray]:
@@ -291,6 +295,25 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     return csgraph.connected_components(g, directed=False)[1]
 
 
+def _dense_core(xy: np.ndarray, radius: float, *, min_share: float = 0.5) -> np.ndarray | None:
+    """The points of a slice cluster within ``radius`` of its densest place, if they hold
+    at least ``min_share`` of it; else None.
+
+    The centre starts at the cluster's median and is moved three times to the median
+    of the points within ``radius`` of it (a trimmed-median mode seeker), so a leaf
+    band joined to a noisy stem's disc drags it little while the disc holds most of
+    the points.
+    """
+    c = np.median(xy, axis=0)
+    core = xy
+    for _ in range(3):
+        core = xy[np.hypot(*(xy - c).T) <= radius]
+        if len(core) < 6:
+            return None
+        c = np.median(core, axis=0)
+    return core if len(core) >= min_share * len(xy) else None
+
+
 def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diameter_m: float,
                n_slices: int = 6, min_slices: int = 3) -> tuple[StemBase, ...]:
     """Stems found from the base up: compact clusters that persist over thin slices.
@@ -299,11 +322,21 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
     ``base_z`` (the lowest is skipped: soil and disk edges). In each slice the points
     are clustered in XY (single linkage at ``max(3 spacing, 2 noise)``); a cluster
     whose extent is at most ``max_diameter_m + 4 noise`` gets a circle fit (Kasa,
-    then geometric; :func:`plantsim.evaluation.traits.fit_circle`). Fits whose centres
-    lie within one diameter of each other across slices form a column; a column found
+    then geometric; :func:`plantsim.evaluation.traits.fit_circle`). A fit wider than
+    ``max_diameter_m`` or on too short an arc falls back to the cluster's mean and
+    extent (a noise-dominated slice). In a noisy cloud (noise above half the spacing:
+    range noise smears a thin stem into a disc centimetres wide, and the leaf bases
+    it touches join it in the slice) a wider cluster is cut to its dense core,
+    the points within ``max_diameter_m / 2 + 2 noise`` of its trimmed-median mode
+    (:func:`_dense_core`), when that core holds half of it; the core is a fallback
+    too. Circle fits whose centres lie within one diameter (at least two voxels) of
+    each other across slices form a column, fallbacks within two voxels (a mean
+    follows a leaf rising through the slices; a stem's stays put); a column found
     in at least ``min_slices`` slices is a stem: its centre and diameter are the
-    medians over its slices. A drooping leaf crosses few slices at one place, so it
-    is not taken for a stem; with none found, "no stem" is the answer (an empty
+    medians over its slices, and its diameter is unresolved (an upper bound) when
+    most of them are fallbacks or circles whose RMS residual exceeds a quarter of
+    their radius (a disc of noise, not a ring). A drooping leaf crosses few slices at one place, so
+    it is not taken for a stem; with none found, "no stem" is the answer (an empty
     tuple), never a guess.
 
     Args:
@@ -321,7 +354,8 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
 
     thickness = max(2.0 * scale.voxel_m, 0.003)
     link = max(3.0 * scale.spacing_m, 2.0 * scale.noise_m)
-    fits: list[tuple[int, np.ndarray, float, float, int]] = []
+    noisy = scale.noise_m > 0.5 * scale.spacing_m
+    fits: list[tuple[int, np.ndarray, float, float, int, float, bool]] = []
     for k in range(1, n_slices + 1):
         z0 = base_z + k * thickness
         sl = points[(points[:, 2] >= z0) & (points[:, 2] < z0 + thickness), :2]
@@ -330,27 +364,40 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
             # A robust extent: twice the 95th percentile distance from the median
             # point, so one stray point cannot make a stem look like a leaf.
             extent = 2.0 * float(np.percentile(np.hypot(*(xy - np.median(xy, axis=0)).T), 95))
-            if extent > max_diameter_m + 4.0 * scale.noise_m:
+            cored = extent > max_diameter_m + 4.0 * scale.noise_m
+            if cored and not noisy:
                 continue
+            if cored:
+                xy = _dense_core(xy, 0.5 * max_diameter_m + 2.0 * scale.noise_m)
+                if xy is None:
+                    continue
+                extent = 2.0 * float(np.percentile(np.hypot(*(xy - np.median(xy, axis=0)).T), 95))
             try:
                 fit = fit_circle(xy)
             except ValueError:
                 continue
             radius = fit.radius
             # A short arc fits any large circle: a stem's points span about a radius.
-            if 2 * radius > max_diameter_m or radius > 2 * extent:
+            fallback = cored or 2 * radius > max_diameter_m or radius > 2 * extent
+            if fallback:
                 radius = 0.5 * extent  # fall back to the extent (noise-dominated slice)
                 centre = xy.mean(axis=0)
             else:
                 centre = np.array(fit.center_xy)
-            fits.append((k, centre, 2 * radius, fit.rms_residual, len(g)))
+            # A circle's centre may wander by its diameter between slices; a fallback's
+            # is a mean, which a leaf band rising through the slices drags along with
+            # it, so it must stay within two voxels to be one column.
+            join = 2 * scale.voxel_m if fallback else max(2 * radius, 2 * scale.voxel_m)
+            # A ring's residual is a small part of its radius; a noise-filled disc's is not.
+            unresolved = fallback or fit.rms_residual > 0.25 * radius
+            fits.append((k, centre, 2 * radius, fit.rms_residual, len(g), join, unresolved))
     stems: list[StemBase] = []
     used = np.zeros(len(fits), dtype=bool)
-    for i, (_, centre, diam, _, _) in enumerate(fits):
+    for i, (_, centre, _, _, _, join, _) in enumerate(fits):
         if used[i]:
             continue
         members = [j for j, f in enumerate(fits) if not used[j]
-                   and np.linalg.norm(f[1] - centre) <= max(diam, 2 * scale.voxel_m)]
+                   and np.linalg.norm(f[1] - centre) <= join]
         slices = {fits[j][0] for j in members}
         if len(slices) < min_slices:
             continue
@@ -359,7 +406,8 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
         stems.append(StemBase(center_xy_m=(float(c[0]), float(c[1])),
                               diameter_m=float(np.median([fits[j][2] for j in members])),
                               rms_residual_m=float(np.median([fits[j][3] for j in members])),
-                              n_slices=len(slices), n_points=int(sum(fits[j][4] for j in members))))
+                              n_slices=len(slices), n_points=int(sum(fits[j][4] for j in members)),
+                              diameter_resolved=2 * sum(fits[j][6] for j in members) < len(members)))
     stems.sort(key=lambda s: s.center_xy_m)
     return tuple(stems)
 

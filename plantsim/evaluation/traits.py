@@ -163,6 +163,8 @@ class Stem:
         diameter_m: stem diameter.
         rms_residual_m: circle-fit residual (NaN for truth).
         n_points: points in the slice component (0 for truth).
+        diameter_resolved: False when noise hides the stem's diameter in its base
+            slices (no ring fits): ``diameter_m`` is then an upper bound.
     """
 
     index: int
@@ -170,6 +172,7 @@ class Stem:
     diameter_m: float
     rms_residual_m: float = _NAN
     n_points: int = 0
+    diameter_resolved: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -741,7 +744,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     - height: :func:`robust_height`.
     - stems: count, centre and diameter from the base slices (median circle fit over
       the slices a stem persists in); "no stem" (count 0, diameter NaN and a note)
-      when no column persists. Stem height: the top of the stem's skeleton path
+      when no column persists; a note for each stem whose diameter the noise hides
+      (most base slices noise-dominated: the value is an upper bound). Stem height: the top of the stem's skeleton path
       above ``base_z``, largest over stems (valid while the stem is not hidden by
       leaves wrapped round it; reads low where the stem's path is lost in a whorl).
     - leaves: one per skeleton tip branch; per leaf length, width, area and
@@ -771,11 +775,17 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
             base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter))
     height = robust_height(above, base_z=s.base_z, kept=seg.kept, scale=seg.scale)
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
-                       rms_residual_m=st.rms_residual_m, n_points=st.n_points)
+                       rms_residual_m=st.rms_residual_m, n_points=st.n_points,
+                       diameter_resolved=st.diameter_resolved)
                   for i, st in enumerate(seg.stems))
     if not stems:
         notes.append("no stem: no compact column persists in the base slices "
                      f"(noise {1e3 * seg.scale.noise_m:.2g} mm, spacing {1e3 * seg.scale.spacing_m:.2g} mm)")
+    for st in seg.stems:
+        if not st.diameter_resolved:
+            notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: diameter "
+                         f"not resolved, {1e3 * st.diameter_m:.0f} mm is the width of its noisy column in the "
+                         "base slices (no ring fits), an upper bound")
     pairs, mean_pair, mean_nn = stem_distances(stems)
     leaves: list[Leaf] = []
     for i, midrib in enumerate(seg.leaf_midribs):
