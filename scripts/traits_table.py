@@ -6,8 +6,9 @@ seed-rig meshes given by path (no organ labels: their only truth is the paper's 
 measurements, Tables I and II, shown beside), scanned on the original rig's geometry.
 Ideal = noiseless sensor at 0.5 deg steps; realistic = the URG-04LX sensor model at
 1 deg. Every cell is ``value (relative error)`` (angles: the difference in degrees); "no truth" where the truth is not
-known, "not found" where the cloud method found nothing (e.g. no stem), with the
-method's own notes listed under the table.
+known, "not found" where the cloud method found nothing (e.g. no stem), "<= ... (upper
+bound)" for a stem diameter the noise hides, with the method's own notes listed under
+the table.
 
 Usage:
     python scripts/traits_table.py [--seed-rig ../shared/seed-rig] [--write docs/traits.md]
@@ -103,6 +104,8 @@ def estimate_of(points) -> tuple[dict, tuple[str, ...]]:
     out = {key: float(getattr(e, key)) for key, *_ in TRAITS if hasattr(e, key)}
     out["median_leaf_width_m"] = _nan_median(getattr(e, "leaf_widths_m", ()))
     out["mean_leaf_inclination_deg"] = _nan_mean(getattr(e, "leaf_inclinations_deg", ()))
+    # A stem whose diameter the noise hides reads its noisy column's width: an upper bound.
+    out["stem_diameter_upper_bound"] = any(not st.diameter_resolved for st in e.stems)
     return out, tuple(getattr(e, "notes", ()))
 
 
@@ -148,6 +151,9 @@ def rows_for(name: str, truth: dict | None, scans: dict, paper_name: str | None)
             truth_text = f"{r * scale:.4g}"
         paper_text = (f"{paper[1]:.4g} / {paper[2]:.4g}" if paper else "")
         cells = [_cell(scans[s][0].get(key), r, scale, key) if s in scans else "not run" for s, *_ in SETTINGS]
+        if key == "stem_diameter_m":
+            cells = [f"<= {c} (upper bound)" if s in scans and scans[s][0].get("stem_diameter_upper_bound") else c
+                     for c, (s, *_) in zip(cells, SETTINGS)]
         rows.append(f"| {name} | {label}{f' [{unit}]' if unit else ''} | {truth_text} | "
                     + " | ".join(cells) + f" | {paper_text} |")
     return rows
