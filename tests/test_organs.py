@@ -225,3 +225,25 @@ def test_scan_fit_rig_moves_the_lidar_and_says_so(tmp_path, capsys):
     assert rig["lidar_height_m"] == pytest.approx(0.35, abs=0.01)
     assert meta["simulated"]["plan"]["rig_fit_warnings"] == []
     assert f"LiDAR at {rig['lidar_distance_m']:.3f} m" in printed[0]
+
+
+def test_cli_traits_shows_a_stem_diameter_the_noise_hides_as_a_bound(tmp_path, capsys):
+    # A 4 mm stem under 8 mm of range noise (along the fan's azimuth, as a turntable
+    # LiDAR's beams run) is a disc several centimetres wide: the CLI must not print its
+    # width as the stem's diameter.
+    from plantsim.cli.app import build_parser
+    rng = np.random.default_rng(3)
+    theta, z = rng.uniform(0, 2 * np.pi, 30_000), rng.uniform(0.0, 0.4, 30_000)
+    pts = np.column_stack([0.002 * np.cos(theta), 0.002 * np.sin(theta), z])
+    pts[:, :2] *= (1.0 + rng.normal(0.0, 0.008, len(pts)) / 0.002)[:, None]
+    path = tmp_path / "noisy.ply"
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
+              "property float y\nproperty float z\nend_header\n" % len(pts))
+    path.write_bytes(header.encode("ascii") + pts.astype("<f4").tobytes())
+    out = tmp_path / "t.json"
+    args = build_parser().parse_args(["traits", str(path), "-o", str(out)])
+    assert args.func(args) == 0
+    text = capsys.readouterr().out
+    (stem,) = json.loads(out.read_text())["stems"]
+    assert stem["diameter_resolved"] is False and stem["diameter_m"] > 0.004
+    assert "diameter <= " in text and "diameter not resolved" in text

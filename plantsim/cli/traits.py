@@ -61,8 +61,10 @@ def cmd_traits(args: argparse.Namespace) -> int:
     else:
         def f(v, scale=1.0, unit=""):
             return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v * scale:.4g}{unit}"
+        # A diameter the noise hides is the noisy column's width: shown as a bound.
+        bound = "<= " if any(not st.get("diameter_resolved", True) for st in out.get("stems", ())) else ""
         print(f"height {f(out['height_m'], 1e3, ' mm')}; stems {out['stem_count']}, diameter "
-              f"{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}; "
+              f"{bound}{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}; "
               f"leaves {out['leaf_count']}, area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
         for note in out["notes"]:
             print(f"note: {note}")
