@@ -73,6 +73,11 @@ from plantsim.evaluation.knn import NeighbourIndex
 
 logger = logging.getLogger(__name__)
 
+__all__ = [
+    "CloudScale", "Segmentation", "SegmentationSettings", "StemBase", "estimate_scale",
+    "find_stems", "node_frames", "outlier_mask", "segment_organs", "voxel_centroids",
+]
+
 
 # --------------------------------------------------------------------------
 # scale and outliers

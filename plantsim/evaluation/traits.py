@@ -59,6 +59,14 @@ from plantsim.evaluation import metrics
 
 logger = logging.getLogger(__name__)
 
+__all__ = [
+    "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
+    "TraitSettings", "compare_traits", "connected_components", "convex_hull_volume",
+    "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width", "plant_height",
+    "projected_area_xy", "robust_height", "stem_distances", "top_voxel_min_points", "trait_error",
+    "traits_from_mesh", "traits_from_truth",
+]
+
 _NAN = float("nan")
 
 
