@@ -62,6 +62,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import typing
 from typing import Any
 
 import numpy as np
@@ -300,6 +301,18 @@ def _components(n: int, pairs: np.ndarray) -> np.ndarray:
     return csgraph.connected_components(g, directed=False)[1]
 
 
+class _SliceFit(typing.NamedTuple):
+    """One stem candidate in one base slice (:func:`find_stems`)."""
+
+    slice_index: int
+    centre_xy: np.ndarray
+    diameter_m: float
+    rms_residual_m: float
+    n_points: int
+    join_m: float          # other slices' centres within this are the same column
+    unresolved: bool       # a fallback or a noise-filled disc, not a ring
+
+
 def _dense_core(xy: np.ndarray, radius: float, *, min_share: float = 0.5) -> np.ndarray | None:
     """The points of a slice cluster within ``radius`` of its densest place, if they hold
     at least ``min_share`` of it; else None.
@@ -360,7 +373,7 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
     thickness = max(2.0 * scale.voxel_m, 0.003)
     link = max(3.0 * scale.spacing_m, 2.0 * scale.noise_m)
     noisy = scale.noise_m > 0.5 * scale.spacing_m
-    fits: list[tuple[int, np.ndarray, float, float, int, float, bool]] = []
+    fits: list[_SliceFit] = []
     for k in range(1, n_slices + 1):
         z0 = base_z + k * thickness
         sl = points[(points[:, 2] >= z0) & (points[:, 2] < z0 + thickness), :2]
@@ -395,24 +408,25 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
             join = 2 * scale.voxel_m if fallback else max(2 * radius, 2 * scale.voxel_m)
             # A ring's residual is a small part of its radius; a noise-filled disc's is not.
             unresolved = fallback or fit.rms_residual > 0.25 * radius
-            fits.append((k, centre, 2 * radius, fit.rms_residual, len(g), join, unresolved))
+            fits.append(_SliceFit(k, centre, 2 * radius, fit.rms_residual, len(g), join, unresolved))
     stems: list[StemBase] = []
     used = np.zeros(len(fits), dtype=bool)
-    for i, (_, centre, _, _, _, join, _) in enumerate(fits):
+    for i, seed in enumerate(fits):
         if used[i]:
             continue
         members = [j for j, f in enumerate(fits) if not used[j]
-                   and np.linalg.norm(f[1] - centre) <= join]
-        slices = {fits[j][0] for j in members}
+                   and np.linalg.norm(f.centre_xy - seed.centre_xy) <= seed.join_m]
+        slices = {fits[j].slice_index for j in members}
         if len(slices) < min_slices:
             continue
         used[members] = True
-        c = np.median(np.array([fits[j][1] for j in members]), axis=0)
+        column = [fits[j] for j in members]
+        c = np.median(np.array([f.centre_xy for f in column]), axis=0)
         stems.append(StemBase(center_xy_m=(float(c[0]), float(c[1])),
-                              diameter_m=float(np.median([fits[j][2] for j in members])),
-                              rms_residual_m=float(np.median([fits[j][3] for j in members])),
-                              n_slices=len(slices), n_points=int(sum(fits[j][4] for j in members)),
-                              diameter_resolved=2 * sum(fits[j][6] for j in members) < len(members)))
+                              diameter_m=float(np.median([f.diameter_m for f in column])),
+                              rms_residual_m=float(np.median([f.rms_residual_m for f in column])),
+                              n_slices=len(slices), n_points=int(sum(f.n_points for f in column)),
+                              diameter_resolved=2 * sum(f.unresolved for f in column) < len(column)))
     stems.sort(key=lambda s: s.center_xy_m)
     return tuple(stems)
 
