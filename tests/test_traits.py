@@ -443,3 +443,19 @@ def test_traits_from_mesh_of_a_stem_with_a_flat_leaf():
     # Measured from the stem's skeleton: the blade's 0.25 m plus part of the stem radius.
     assert t.leaf_length_m == pytest.approx(0.25, rel=0.03)
     assert t.leaf_width_m == pytest.approx(0.02, rel=0.02)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_noisy_stem_reads_no_taller_than_the_plant(seed):
+    # A 0.35 m stem under 10 mm of beam noise: its top is read by the plant height's own
+    # robust rule, so it is within 2 % of the truth and never above the plant's height
+    # (the top skeleton piece's centroid read up to 3.6 mm above it in two seeds of six).
+    rng = np.random.default_rng(seed)
+    r = 0.0035
+    stem = _cylinder_cloud(rng, (0.0, 0.0), r, 0.35, 40_000)
+    leaves = [_strip(rng, 0.07, 0.025, 400, origin=(r * np.cos(a), r * np.sin(a), z),
+                     direction=(np.cos(a), np.sin(a), 0.0))
+              for z, a in ((0.14, 0.0), (0.21, 2.1), (0.28, 4.2))]
+    t = traits.extract_traits(_beam_noise(rng, np.vstack([stem, *leaves]), 0.010))
+    assert t.stem_height_m <= t.height_m
+    assert t.stem_height_m == pytest.approx(0.35, rel=0.02)

@@ -753,9 +753,12 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     - stems: count, centre and diameter from the base slices (median circle fit over
       the slices a stem persists in); "no stem" (count 0, diameter NaN and a note)
       when no column persists; a note for each stem whose diameter the noise hides
-      (most base slices noise-dominated: the value is an upper bound). Stem height: the top of the stem's skeleton path
-      above ``base_z``, largest over stems (valid while the stem is not hidden by
-      leaves wrapped round it; reads low where the stem's path is lost in a whorl).
+      (most base slices noise-dominated: the value is an upper bound). Stem height:
+      the top of the stem's points (those its skeleton walk kept) above ``base_z``
+      by :func:`robust_height`'s rule, so no stem reads taller than the plant;
+      largest over stems (valid while the stem is not hidden by leaves wrapped round
+      it; reads low where the stem's path is lost in a whorl, and high where a noisy
+      column is walked up through the leaves round the axis).
     - leaves: one per skeleton tip branch; per leaf length, width, area and
       inclination (:func:`_leaf_measures`); ``leaf_area_m2`` their sum (one side).
     - convex hull volume (Qhull) and projected XY area (occupancy grid, cell
@@ -801,8 +804,12 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         length, width, area, incl = _leaf_measures(lp, midrib)
         leaves.append(Leaf(index=i, length_m=length, width_m=width, n_points=int(len(lp)),
                            area_m2=area, inclination_deg=incl))
-    stem_height = (float(seg.stem_tops_m[:, 2].max() - s.base_z) if len(seg.stem_tops_m) and stems
-                   else _NAN)
+    # Each stem's top by the plant height's own rule (robust_height on its points): the
+    # highest skeleton piece of a noisy column can be a few stray points above the plant's
+    # top; no stem can then read taller than the plant.
+    stem_tops = [robust_height(sp, base_z=s.base_z, scale=seg.scale, kept=np.ones(len(sp), dtype=bool))
+                 for sp in (seg.points[seg.stem_label == i] for i in range(len(stems))) if len(sp)]
+    stem_height = max(stem_tops) if stem_tops and stems else _NAN
     cell = max(s.grid_cell, 2 * seg.scale.voxel_m)
     return PlantTraits(
         height_m=height,
