@@ -19,6 +19,13 @@ from plantsim.sensor.spec import PRESETS
 LIDAR = PRESETS["urg-04lx-ug01"]
 
 
+def _write_xyz_ply(path, pts):
+    """A bare x, y, z float PLY, as another tool would write a cloud."""
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
+              "property float y\nproperty float z\nend_header\n" % len(pts))
+    path.write_bytes(header.encode("ascii") + pts.astype("<f4").tobytes())
+
+
 def _dense(plant, n=120_000):
     pts, _ = metrics.sample_surface(plant.vertices_m, plant.faces, n, rng=0)
     return pts
@@ -191,9 +198,7 @@ def test_cli_traits_round_trip(tmp_path, capsys):
     plant = make_maize(seed=2, n_leaves=3)
     pts = _dense(plant, 60_000)
     path = tmp_path / "c.ply"
-    header = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
-              "property float y\nproperty float z\nend_header\n" % len(pts))
-    path.write_bytes(header.encode("ascii") + pts.astype("<f4").tobytes())
+    _write_xyz_ply(path, pts)
     out = tmp_path / "t.json"
     args = build_parser().parse_args(["traits", str(path), "--json", "-o", str(out)])
     assert args.func(args) == 0
@@ -237,9 +242,7 @@ def test_cli_traits_shows_a_stem_diameter_the_noise_hides_as_a_bound(tmp_path, c
     pts = np.column_stack([0.002 * np.cos(theta), 0.002 * np.sin(theta), z])
     pts[:, :2] *= (1.0 + rng.normal(0.0, 0.008, len(pts)) / 0.002)[:, None]
     path = tmp_path / "noisy.ply"
-    header = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
-              "property float y\nproperty float z\nend_header\n" % len(pts))
-    path.write_bytes(header.encode("ascii") + pts.astype("<f4").tobytes())
+    _write_xyz_ply(path, pts)
     out = tmp_path / "t.json"
     args = build_parser().parse_args(["traits", str(path), "-o", str(out)])
     assert args.func(args) == 0

@@ -313,6 +313,12 @@ class _SliceFit(typing.NamedTuple):
     unresolved: bool       # a fallback or a noise-filled disc, not a ring
 
 
+def _robust_extent(xy: np.ndarray) -> float:
+    """Twice the 95th-percentile distance from the median point: one stray point
+    cannot make a stem look like a leaf."""
+    return 2.0 * float(np.percentile(np.hypot(*(xy - np.median(xy, axis=0)).T), 95))
+
+
 def _dense_core(xy: np.ndarray, radius: float, *, min_share: float = 0.5) -> np.ndarray | None:
     """The points of a slice cluster within ``radius`` of its densest place, if they hold
     at least ``min_share`` of it; else None.
@@ -379,9 +385,7 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
         sl = points[(points[:, 2] >= z0) & (points[:, 2] < z0 + thickness), :2]
         for g in _xy_clusters(sl, link, 6):
             xy = sl[g]
-            # A robust extent: twice the 95th percentile distance from the median
-            # point, so one stray point cannot make a stem look like a leaf.
-            extent = 2.0 * float(np.percentile(np.hypot(*(xy - np.median(xy, axis=0)).T), 95))
+            extent = _robust_extent(xy)
             cored = extent > max_diameter_m + 4.0 * scale.noise_m
             if cored and not noisy:
                 continue
@@ -389,7 +393,7 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
                 xy = _dense_core(xy, 0.5 * max_diameter_m + 2.0 * scale.noise_m)
                 if xy is None:
                     continue
-                extent = 2.0 * float(np.percentile(np.hypot(*(xy - np.median(xy, axis=0)).T), 95))
+                extent = _robust_extent(xy)
             try:
                 fit = fit_circle(xy)
             except ValueError:
