@@ -17,6 +17,7 @@ knows -> cloud. The public surface, in one place::
 
     raw, info = plantsim.read_raw("scan_raw")            # any bag with the same conventions
     cloud = plantsim.reconstruct(raw)
+    smooth = plantsim.reconstruct(plantsim.filter_ranges(raw)[0])   # ranges denoised first
 
 Every name loads its module on first use: ``import plantsim`` costs nothing, and
 a scan pays only for the parts it runs.
@@ -46,6 +47,7 @@ __version__ = "0.2.0"
 _LAZY_MODULES = {
     "plantsim.cloud.export": "CLASSIFICATION EXPORTERS read_cloud write_cloud",
     "plantsim.cloud.reconstruct": "PointCloud reconstruct",
+    "plantsim.cloud.denoise": "filter_ranges",
     "plantsim.plant.mesh": "PlantMesh load_plant plant_from_arrays",
     "plantsim.plant.procedural": ("PART_EAR PART_LEAF PART_STEM MaizeParams ProceduralPlant WheatParams make_maize "
                                   "make_wheat RosetteParams make_rosette DicotParams make_dicot PART_PETIOLE PART_BRANCH PART_NAMES "
@@ -55,7 +57,7 @@ _LAZY_MODULES = {
     "plantsim.resources": "bundled_plant_path",
     "plantsim.rig.geometry": "RigGeometry",
     "plantsim.rig.scene": "HitClass Scene build_scene",
-    "plantsim.scan.config": "OutputOptions PlantOptions RunConfig config_from_dict load_toml",
+    "plantsim.scan.config": "OutputOptions PlantOptions RangeFilter RunConfig config_from_dict load_toml",
     "plantsim.scan.pipeline": "ScanResult run_scan simulated_rig_time_s with_evaluation write_result performance",
     "plantsim.scan.plan": "ScanPlan plan_scan",
     "plantsim.scan.raw": "ANGLE_MODES BeamGrid RawScan",
@@ -101,7 +103,8 @@ __all__ = [
     "SimulatedLidar", "Caster", "MujocoBackend", "BeamStatus", "Turntable", "SimulatedTurntable",
     "ServoTurntable", "ServoStatus", "SafeStop", "StopAction", "SafeStopReport",
     # the raw record and the cloud
-    "RawScan", "BeamGrid", "ANGLE_MODES", "read_raw", "write_raw", "reconstruct", "PointCloud", "read_cloud",
+    "RawScan", "BeamGrid", "ANGLE_MODES", "read_raw", "write_raw", "reconstruct", "RangeFilter", "filter_ranges",
+    "PointCloud", "read_cloud",
     "write_cloud", "EXPORTERS", "CLASSIFICATION",
     # what the turntable did
     "DynamicsDiagnostics", "angle_error_displacement",

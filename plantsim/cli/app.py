@@ -35,6 +35,7 @@ def scan_overrides(args: argparse.Namespace) -> dict:
         ("output", "raw"): _opt(args, "raw"),
         ("turntable", "deskew"): False if _opt(args, "no_deskew") else None,
         ("lidar", "preset"): _opt(args, "lidar_preset"), ("sensor_model", "footprint_rings"): _opt(args, "footprint_rings"),
+        ("range_filter", "enabled"): _opt(args, "range_filter") or None,
     }
     out: dict = {}
     for key, value in pairs.items():
@@ -177,6 +178,9 @@ def summary_line(result, path, seconds: float) -> str:
     rig_points = counts["turntable"] + counts["rig"]
     plan = result.plan
     what = f"{plan.sensor} sensor, {plan.motion} turntable, {plan.mode} mode"
+    rf = result.parts.get("range_filter")
+    if rf:
+        what += f", ranges filtered (noise {1e3 * rf['sigma_m']:.1f} mm)"
     resumed = f" ({result.lines_resumed} resumed from the journal)" if result.lines_resumed else ""
     raw = f" and the raw bag to {result.config.output.raw}" if result.config.output.raw else ""
     return (f"wrote {len(result.cloud):,} points ({counts['plant']:,} on the plant, {rig_points:,} on the rig) "
@@ -207,6 +211,10 @@ def add_common_scan_options(parser: argparse.ArgumentParser, *, preset_flag: str
     parser.add_argument("--footprint-rings", type=int,
                         help="rings of sub-rays per beam footprint: 0 one ray, 1 7, 2 19 (default), 3 37")
     parser.add_argument("--plant-only", action="store_true", help="write only points on the plant")
+    parser.add_argument("--range-filter", action="store_true",
+                        help="denoise the ranges in the range image before making points (a robust local-plane "
+                             "fit over 7 x 7 beams; [range_filter] in the config sets the window); the raw "
+                             "record keeps the sensor's ranges")
     parser.add_argument("--threads", type=int, help="ray-casting threads (default: all cores)")
     parser.add_argument("--caster", choices=["mujoco", "embree", "auto"],
                         help="ray caster: auto (default: Embree when installed, else MuJoCo), embree, or mujoco "
@@ -252,6 +260,16 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
         rig = config_from_dict({"rig": load_toml(args.rig).get("rig", {})}).rig
         raw = raw.replace(lidar_pose=lidar_pose_of(rig.T_base_lidar()),
                           encoder_offset_rad=math.radians(rig.encoder_offset_deg))
+    filter_report = None
+    if args.range_filter:
+        from plantsim.cloud.denoise import filter_ranges
+        from plantsim.scan.config import RangeFilter
+
+        settings = RangeFilter(enabled=True)
+        raw, report = filter_ranges(raw, settings)
+        filter_report = report.to_dict(settings)
+        print(f"range filter: noise {1e3 * report.sigma_m:.1f} mm, {report.filtered:,} of {report.returns:,} "
+              f"returns refitted (median change {1e3 * report.median_change_m:.1f} mm)")
     cloud = reconstruct(raw)
     if args.plant_only:
         if raw.true_turntable_angle_rad is None:
@@ -262,6 +280,8 @@ def cmd_reconstruct(args: argparse.Namespace) -> int:
                "angle_mode": raw.angle_mode, "scan_info": metadata,
                "frames": {"T_base_lidar": raw.T_base_lidar.tolist()},
                "counts": {**raw.counts(), "points_written": len(cloud)}}
+    if filter_report is not None:
+        sidecar["range_filter"] = filter_report
     write_cloud(path, cloud, sidecar=sidecar)
     print(f"wrote {len(cloud):,} points from {raw.n_lines} lines x {raw.n_beams} beams ({raw.angle_mode} "
           f"angles) to {path}")
@@ -350,6 +370,9 @@ def build_parser(*, only_scan: bool = False) -> argparse.ArgumentParser:
     reconstruct.add_argument("-o", "--output", required=True, help="output point cloud (.las .ply .pcd .txt .xyz)")
     reconstruct.add_argument("--plant-only", action="store_true",
                              help="only points the ground truth says hit the plant (simulated bags)")
+    reconstruct.add_argument("--range-filter", action="store_true",
+                             help="denoise the ranges in the range image first (plantsim.cloud.denoise, 7 x 7 "
+                                  "beams, the noise measured on the scan)")
     reconstruct.add_argument("--angle-mode", choices=["interpolate", "line", "commanded"],
                              help="override the bag's rule for the turntable angle of each beam")
     reconstruct.add_argument("--rig", metavar="TOML",

@@ -185,7 +185,8 @@ def run_rig_scan(args: argparse.Namespace) -> int:
         resumed = f" ({result.lines_resumed} resumed from the journal)" if result.lines_resumed else ""
         raw = f" and the raw bag to {result.config.output.raw}" if result.config.output.raw else ""
         print(f"wrote {len(result.cloud):,} points from {result.raw.n_lines} lines{resumed} x {result.raw.n_beams} "
-              f"beams (real {lidar['model']} serial {lidar['serial']}, servo turntable, {result.plan.mode} mode) "
+              f"beams (real {lidar['model']} serial {lidar['serial']}, servo turntable, {result.plan.mode} mode"
+              f"{', ranges filtered' if 'range_filter' in result.parts else ''}) "
               f"to {path}{raw} in {time.perf_counter() - t0:.2f} s")
         return 0
     print(summary_line(result, path, time.perf_counter() - t0))

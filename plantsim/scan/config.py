@@ -1,7 +1,8 @@
 """A scan's whole configuration: plant, sensor, rig, schedule, output.
 
 Every option can come from a TOML file (sections ``[plant]``, ``[lidar]``,
-``[rig]``, ``[scan]``, ``[output]``, ``[sensor_model]``, ``[turntable]``) and from
+``[rig]``, ``[scan]``, ``[output]``, ``[sensor_model]``, ``[turntable]``,
+``[range_filter]``) and from
 the command line, which wins.
 The resolved configuration goes into every output's sidecar JSON.
 """
@@ -84,6 +85,52 @@ class OutputOptions:
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
+class RangeFilter:
+    """Settings of the range-image filter (``[range_filter]``; method in :mod:`plantsim.cloud.denoise`).
+
+    Attributes:
+      enabled: filter the ranges before the points are made.
+      half_lines: window half-size across lines (turntable angles), lines.
+      half_beams: window half-size along the fan, beams.
+      gate_sigma: neighbours within this many noise sigmas of the window's median
+        range are the beam's surface.
+      min_support: fewest neighbours (the beam itself included) a fit needs; a beam with
+        fewer keeps its range.
+      sigma_m: the range noise, metres; None measures it on the scan.
+    """
+
+    enabled: bool = False
+    half_lines: int = 3
+    half_beams: int = 3
+    gate_sigma: float = 2.5
+    min_support: int = 6
+    sigma_m: float | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.enabled, bool):
+            raise ValueError(f"enabled must be true or false, got {self.enabled!r}")
+        for name in ("half_lines", "half_beams"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 20:
+                raise ValueError(f"{name} must be an integer from 0 to 20, got {value!r}")
+        if self.half_lines == 0 and self.half_beams == 0:
+            raise ValueError("half_lines and half_beams are both 0: the window is one beam and "
+                             "filters nothing; make one of them at least 1")
+        if not (isinstance(self.gate_sigma, (int, float)) and not isinstance(self.gate_sigma, bool)
+                and math.isfinite(self.gate_sigma) and self.gate_sigma > 0):
+            raise ValueError(f"gate_sigma must be a number > 0, got {self.gate_sigma!r}")
+        window = (2 * self.half_lines + 1) * (2 * self.half_beams + 1)
+        if isinstance(self.min_support, bool) or not isinstance(self.min_support, int) \
+                or not 3 <= self.min_support <= window:
+            raise ValueError(f"min_support must be an integer from 3 (a plane's unknowns) to the "
+                             f"window's {window} beams, got {self.min_support!r}")
+        if self.sigma_m is not None and not (isinstance(self.sigma_m, (int, float))
+                                             and not isinstance(self.sigma_m, bool)
+                                             and math.isfinite(self.sigma_m) and self.sigma_m >= 0):
+            raise ValueError(f"sigma_m must be a number >= 0 (metres) or absent, got {self.sigma_m!r}")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class RunConfig:
     """Everything a scan run needs.
 
@@ -97,6 +144,8 @@ class RunConfig:
       sensor_model: the sensor imperfections and reflectances of a
         non-ideal run (``[sensor_model]``).
       sensor: "realistic" (default) or "ideal": the LiDAR alone.
+      range_filter: denoise the ranges in the range image before the points are made
+        (:mod:`plantsim.cloud.denoise`); the raw record keeps the sensor's ranges.
       caster: the ray-casting backend: "auto" (Embree when installed, else
         MuJoCo), "embree" or "mujoco" (the reference; same hits, slower).
       explicit: dotted paths of the settings the user gave (filled by
@@ -116,11 +165,13 @@ class RunConfig:
     threads: int | None = None
     turntable: TurntableOptions = TurntableOptions()
     sensor_model: SensorModel = SensorModel()
+    range_filter: RangeFilter = RangeFilter()
     explicit: frozenset = frozenset()
 
     def __post_init__(self):
         for name, cls in (("plant", PlantOptions), ("lidar", LidarSpec), ("rig", RigGeometry), ("scan", StepScan),
-                          ("output", OutputOptions), ("turntable", TurntableOptions), ("sensor_model", SensorModel)):
+                          ("output", OutputOptions), ("turntable", TurntableOptions), ("sensor_model", SensorModel),
+                          ("range_filter", RangeFilter)):
             if not isinstance(getattr(self, name), cls):
                 raise TypeError(f"RunConfig.{name} must be a plantsim.{cls.__name__}, got "
                                 f"{type(getattr(self, name)).__name__}")
@@ -157,11 +208,12 @@ class RunConfig:
             "threads": self.threads,
             "turntable": dataclasses.asdict(self.turntable),
             "sensor_model": dataclasses.asdict(self.sensor_model),
+            "range_filter": dataclasses.asdict(self.range_filter),
         }
 
 
 _SECTIONS = {"plant": PlantOptions, "rig": RigGeometry, "scan": StepScan, "output": OutputOptions,
-             "sensor_model": SensorModel}
+             "sensor_model": SensorModel, "range_filter": RangeFilter}
 _TOP_LEVEL = ("seed", "ideal", "sensor", "caster", "threads")
 SENSORS = ("ideal", "realistic")
 

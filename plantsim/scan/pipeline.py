@@ -434,9 +434,23 @@ def _describe_schedule(config: RunConfig, plan: ScanPlan, raw: RawScan) -> dict:
 
 def finish_scan(config: RunConfig, plan: ScanPlan, plant: PlantMesh, scene: Scene, raw: RawScan,
                 timings: dict, **extra) -> ScanResult:
-    """Reconstructs a raw scan (plant points only if configured) into a :class:`ScanResult`."""
+    """Reconstructs a raw scan (plant points only if configured) into a :class:`ScanResult`.
+
+    With ``config.range_filter.enabled`` the ranges are denoised first
+    (:func:`plantsim.cloud.denoise.filter_ranges`) and what the filter did goes into
+    the parts as ``range_filter``; the result's ``raw`` keeps the sensor's ranges.
+    """
     t = time.perf_counter()
-    cloud = reconstruct(raw)
+    if config.range_filter.enabled:
+        from plantsim.cloud.denoise import filter_ranges
+
+        filtered, report = filter_ranges(raw, config.range_filter)
+        log.info("range filter: noise %.1f mm, %d of %d returns refitted (median change %.1f mm)",
+                 1e3 * report.sigma_m, report.filtered, report.returns, 1e3 * report.median_change_m)
+        extra["parts"] = {**extra.get("parts", {}), "range_filter": report.to_dict(config.range_filter)}
+        cloud = reconstruct(filtered)
+    else:
+        cloud = reconstruct(raw)
     if config.output.plant_only:
         cloud = cloud.plant_only()
     timings["reconstruct"] = time.perf_counter() - t
@@ -448,7 +462,8 @@ def scan_identity(config: RunConfig, plant: PlantMesh, turntable, source) -> dic
     """What determines a journaled scan's lines: a journal resumes only under the same identity.
 
     Every section of the resolved configuration counts (so a section added later
-    counts too) except the output options and the thread count; the port is not
+    counts too) except the output options, the thread count, the caster and the
+    range filter (which only reconstructs the lines differently); the port is not
     part of it either. The plant is identified by its placed geometry (a hash), not
     its file path, so a relative path from another directory still resumes.
     """
@@ -457,7 +472,8 @@ def scan_identity(config: RunConfig, plant: PlantMesh, turntable, source) -> dic
     digest = hashlib.sha256()
     for array in (plant.vertices_mesh, plant.faces, plant.T_turntable_mesh):
         digest.update(array.tobytes())
-    identity = {k: v for k, v in config.to_dict().items() if k not in ("output", "threads", "caster")}
+    identity = {k: v for k, v in config.to_dict().items() if k not in ("output", "threads", "caster",
+                                                                          "range_filter")}
     identity["plant"] = {k: v for k, v in identity["plant"].items() if k != "mesh"}
     identity["plant_geometry_sha256"] = digest.hexdigest()
     identity["rig_turntable"] = turntable.identity()

@@ -114,6 +114,22 @@ def _key_name(path: str) -> str:
     return f"[{section}] {key}" if section else key
 
 
+def _check_range_filter(config: RunConfig, *, real_lidar: bool) -> None:
+    """Refuses range filter settings with the filter off, and the filter on exact ranges."""
+    rf = config.range_filter
+    if not rf.enabled:
+        fields = [f.name for f in dataclasses.fields(rf) if f.name != "enabled"]
+        unused = _given_under(config, "range_filter", fields)
+        if unused:
+            raise ConfigError(f"{_key_name(unused[0])} is set but the range filter is off and would not use it: "
+                              "set [range_filter] enabled = true (--range-filter), or remove it")
+        return
+    if not real_lidar and (config.ideal or config.sensor == "ideal"):
+        why = "--ideal" if config.ideal else "sensor = \"ideal\""
+        raise ConfigError(f"the range filter denoises measured ranges, but the sensor is ideal ({why}) and its "
+                          "ranges are exact: remove --range-filter, or use --sensor realistic")
+
+
 def plan_scan(config: RunConfig, *, hardware_turntable: bool = False, real_lidar: bool = False) -> ScanPlan:
     """Decides the parts of a scan, refusing settings they would not use.
 
@@ -128,6 +144,7 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False, real_lidar
     tt = config.turntable
     mode = tt.mode
     notes: list[str] = []
+    _check_range_filter(config, real_lidar=real_lidar)
     if real_lidar:
         return _plan_real_lidar(config)
 
