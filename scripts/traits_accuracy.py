@@ -7,6 +7,7 @@ ideal 0.5 deg: 2 %, 20 %, 20 %; realistic 1 deg: 5 %, 40 %, 35 %.
 
     python scripts/traits_accuracy.py            # both settings
     python scripts/traits_accuracy.py --step 2   # a quick look at 2 deg
+    python scripts/traits_accuracy.py --range-filter   # realistic scans denoised first
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import time
 from plantsim.evaluation import traits
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
-from plantsim.scan.config import RunConfig
+from plantsim.scan.config import RangeFilter, RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
 
@@ -38,6 +39,8 @@ def _mm(value: float) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--step", type=float, help="one step for both settings (default 0.5 ideal, 1 realistic)")
+    parser.add_argument("--range-filter", action="store_true",
+                        help="denoise the realistic scans' ranges first (plantsim.cloud.denoise, default window)")
     args = parser.parse_args()
     logging.disable(logging.WARNING)
     plants = (("maize 9 leaves", make_maize(seed=0)), ("wheat 4 tillers", make_wheat(seed=0)),
@@ -49,11 +52,14 @@ def main() -> None:
         t_h, t_n, t_a = TARGETS[setting]
         for name, pl in plants:
             t0 = time.perf_counter()
-            result = run_scan(RunConfig(ideal=setting == "ideal", scan=StepScan(step_deg=step)),
-                              plant=plant_from_arrays(pl.vertices_m, pl.faces))
+            config = RunConfig(ideal=setting == "ideal", scan=StepScan(step_deg=step))
+            if args.range_filter and setting == "realistic":
+                config = config.replace(range_filter=RangeFilter(enabled=True))
+            result = run_scan(config, plant=plant_from_arrays(pl.vertices_m, pl.faces))
             pts = result.cloud.plant_only().points_turntable
             est, tr = traits.extract_traits(pts), pl.traits
-            print(f"{setting:9s} {step:g} deg  {name:18s} n={len(pts):7d}  "
+            label = setting + ("+filter" if "range_filter" in result.parts else "")
+            print(f"{label:16s} {step:g} deg  {name:18s} n={len(pts):7d}  "
                   f"height {_err(est.height_m, tr['height_m'], t_h)}  "
                   f"leaves {_err(est.leaf_count, len(tr['leaves']), t_n)}  "
                   f"area {_err(est.leaf_area_m2, tr['leaf_area_m2'], t_a)}  "
