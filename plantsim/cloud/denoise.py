@@ -173,9 +173,7 @@ def filter_range_image(range_m: Any, *, settings: RangeFilter = RangeFilter(), w
         ok = sub_valid[rows] & (n >= settings.min_support)
         if ok.any():
             fit = np.linalg.solve(m[ok], rhs[ok][..., None])[..., 0]
-            block = result[rows]
-            block[ok] = medians[rows][ok] + fit[:, 0]
-            result[rows] = block
+            result[rows][ok] = medians[rows][ok] + fit[:, 0]  # result[rows] is a view
             done[rows] = ok
     out[:, c0:c1] = result
     refitted[:, c0:c1] = done
@@ -186,7 +184,8 @@ def _row_order(raw: RawScan) -> tuple[np.ndarray, bool]:
     """Lines in order of turntable angle (mod one turn), and whether they wrap round."""
     if raw.n_lines == 0:
         return np.zeros(0, dtype=np.int64), False
-    angle = np.mod(believed_angles(raw)[:, raw.n_beams // 2], 2.0 * math.pi)
+    lines = np.arange(raw.n_lines)
+    angle = np.mod(believed_angles(raw, lines, np.full(raw.n_lines, raw.n_beams // 2)), 2.0 * math.pi)
     order = np.argsort(angle, kind="stable")
     if raw.n_lines < 3:
         return order, False
