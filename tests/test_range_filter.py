@@ -84,13 +84,13 @@ def test_a_full_turn_wraps_so_the_first_and_last_lines_are_neighbours():
 
 
 @pytest.mark.parametrize("changes, message", [
-    (dict(half_lines=-1), "half_lines must be an integer from 0 to 20"),
+    (dict(half_lines=-1), "range_filter.half_lines must be >= 0"),
     (dict(half_lines=0, half_beams=0), "both 0"),
-    (dict(gate_sigma=0), "gate_sigma must be a number > 0"),
-    (dict(min_support=2), "min_support must be an integer from 3"),
-    (dict(half_lines=1, half_beams=1, min_support=10), "window's 9 beams"),
-    (dict(sigma_m=-0.01), "sigma_m must be a number >= 0"),
-    (dict(enabled="yes"), "enabled must be true or false"),
+    (dict(gate_sigma=0), "range_filter.gate_sigma must be > 0"),
+    (dict(min_support=2), "range_filter.min_support must be >= 3"),
+    (dict(half_lines=1, half_beams=1, min_support=10), "range_filter.min_support must be <= 9"),
+    (dict(sigma_m=-0.01), "range_filter.sigma_m must be >= 0"),
+    (dict(enabled="yes"), "range_filter.enabled must be true or false"),
 ])
 def test_impossible_filter_settings_are_refused_with_what_to_change(changes, message):
     with pytest.raises(ValueError, match=message):

@@ -154,8 +154,7 @@ def filter_range_image(range_m: Any, *, settings: RangeFilter = RangeFilter(), w
     # the gated neighbours; a tiny ridge on b, c makes a one-row or one-column support
     # a line fit (or a mean) instead of a singular system.
     gate = settings.gate_sigma * sigma
-    result = np.array(sub)
-    done = np.zeros(sub.shape, dtype=bool)
+    result, done = out[:, c0:c1], refitted[:, c0:c1]  # views: written in place
     for start in range(0, n_rows, _BLOCK_ROWS):
         rows = slice(start, min(start + _BLOCK_ROWS, n_rows))
         win = _windows(padded, rows, hl, hb, n_cols)
@@ -173,10 +172,8 @@ def filter_range_image(range_m: Any, *, settings: RangeFilter = RangeFilter(), w
         ok = sub_valid[rows] & (n >= settings.min_support)
         if ok.any():
             fit = np.linalg.solve(m[ok], rhs[ok][..., None])[..., 0]
-            result[rows][ok] = medians[rows][ok] + fit[:, 0]  # result[rows] is a view
+            result[rows][ok] = medians[rows][ok] + fit[:, 0]
             done[rows] = ok
-    out[:, c0:c1] = result
-    refitted[:, c0:c1] = done
     return out, sigma, refitted
 
 

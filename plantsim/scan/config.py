@@ -18,7 +18,7 @@ from typing import Any
 
 from plantsim.turntable.options import TurntableOptions, turntable_options_from_dict
 from plantsim.errors import ConfigError
-from plantsim.validation import check_bool, check_optional, check_path, check_str
+from plantsim.validation import check_bool, check_int, check_number, check_optional, check_path, check_str
 from plantsim.plant.mesh import PLACEMENTS, UNITS_TO_M
 from plantsim.rig.geometry import RigGeometry
 from plantsim.scan.schedule import StepScan
@@ -107,27 +107,16 @@ class RangeFilter:
     sigma_m: float | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.enabled, bool):
-            raise ValueError(f"enabled must be true or false, got {self.enabled!r}")
-        for name in ("half_lines", "half_beams"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 20:
-                raise ValueError(f"{name} must be an integer from 0 to 20, got {value!r}")
+        check_bool("range_filter", "enabled", self.enabled)
+        check_int("range_filter", "half_lines", self.half_lines, minimum=0, maximum=20)
+        check_int("range_filter", "half_beams", self.half_beams, minimum=0, maximum=20)
         if self.half_lines == 0 and self.half_beams == 0:
-            raise ValueError("half_lines and half_beams are both 0: the window is one beam and "
+            raise ValueError("range_filter.half_lines and half_beams are both 0: the window is one beam and "
                              "filters nothing; make one of them at least 1")
-        if not (isinstance(self.gate_sigma, (int, float)) and not isinstance(self.gate_sigma, bool)
-                and math.isfinite(self.gate_sigma) and self.gate_sigma > 0):
-            raise ValueError(f"gate_sigma must be a number > 0, got {self.gate_sigma!r}")
+        check_number("range_filter", "gate_sigma", self.gate_sigma, minimum=0.0, strict_minimum=True)
         window = (2 * self.half_lines + 1) * (2 * self.half_beams + 1)
-        if isinstance(self.min_support, bool) or not isinstance(self.min_support, int) \
-                or not 3 <= self.min_support <= window:
-            raise ValueError(f"min_support must be an integer from 3 (a plane's unknowns) to the "
-                             f"window's {window} beams, got {self.min_support!r}")
-        if self.sigma_m is not None and not (isinstance(self.sigma_m, (int, float))
-                                             and not isinstance(self.sigma_m, bool)
-                                             and math.isfinite(self.sigma_m) and self.sigma_m >= 0):
-            raise ValueError(f"sigma_m must be a number >= 0 (metres) or absent, got {self.sigma_m!r}")
+        check_int("range_filter", "min_support", self.min_support, minimum=3, maximum=window)
+        check_optional(check_number, "range_filter", "sigma_m", self.sigma_m, minimum=0.0, unit="m")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
