@@ -201,6 +201,27 @@ def test_a_stem_split_lengthwise_by_a_hidden_band_is_one_stem_to_its_top():
     assert max(t.leaf_lengths_m) == pytest.approx(0.20, rel=0.10)
 
 
+@pytest.mark.parametrize("gap", [0.008, 0.012])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_lone_scan_line_beside_a_leaf_is_not_a_leaf(seed, gap):
+    # A leaf seen at a grazing angle (a rosette's outer leaves from the side) is
+    # sampled in scan lines a centimetre apart; a stretch of one line falls apart from
+    # its leaf and is bridged to the graph as a branch of its own. It made a third
+    # "leaf" here, of no area; a leaf is a surface, and the line joins what it hangs from.
+    rng = np.random.default_rng(seed)
+    r = 0.004
+    stem = _cylinder_cloud(rng, (0.0, 0.0), r, 0.25, 20_000)
+    leaf_a = _strip(rng, 0.12, 0.03, 8_000, origin=(r, 0.0, 0.10), direction=(1.0, 0.0, 0.0))
+    leaf_b = _strip(rng, 0.12, 0.03, 8_000, origin=(-r, 0.0, 0.18), direction=(-1.0, 0.0, 0.0))
+    x = np.arange(0.05, 0.11, 0.0004)  # 6 cm of one line, beside leaf a's edge
+    line = np.column_stack([x, np.full_like(x, 0.015 + gap), np.full_like(x, 0.10)])
+    t = traits.extract_traits(np.vstack([stem, leaf_a, leaf_b, line]))
+    assert t.leaf_count == 2
+    for length, area in zip(t.leaf_lengths_m, t.leaf_areas_m2):
+        assert length == pytest.approx(0.125, rel=0.10)
+        assert area == pytest.approx(0.12 * 0.03, rel=0.15)
+
+
 def _beam_noise(rng, pts, sigma, lidar_distance=0.35, lidar_height=0.15):
     """Range noise as a turntable LiDAR makes it: every beam lies in a vertical plane
     through the axis (the fan), so a point moves along its own azimuth, rising or

@@ -39,7 +39,10 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    centimetres wide whose level sets hold most of a short leaf (a bean's
    leaflets), leaving a branch of a bin or two past them; a leaf is the chain
    of nodes from its tip down to the stem, shared nodes going to the longer leaf;
-   shorter spurs join the leaf they hang from. Stem pieces keep only the points
+   shorter spurs join the leaf they hang from, and so does a branch whose nodes
+   lie along one straight line (a lone scan line of a leaf seen at a grazing
+   angle, bridged to the graph apart from its leaf: a leaf is a surface;
+   :func:`_is_line`). Stem pieces keep only the points
    within the stem's radius (plus noise and a voxel) of the axis the walk tracked;
    the rest, leaf bases wrapped round the stem, go to the leaf they touch.
 7. Halves: a band along a leaf that no view sees (shaded by a leaf below) cuts the
@@ -533,6 +536,23 @@ def _graph(nodes: np.ndarray, link: float) -> sparse.csr_matrix:
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m)).tocsr()
 
 
+def _is_line(branch_nodes: np.ndarray, spacing: float, *, min_nodes: int = 6) -> bool:
+    """True when a branch's nodes lie along one straight line: their RMS distance from
+    their principal axis is below the point spacing, over at least ``min_nodes`` nodes.
+
+    A leaf is a surface. Where it is seen at a grazing angle (a rosette's outer leaves
+    from a side-mounted LiDAR) its samples are scan lines a centimetre apart, and a
+    short stretch of one line can fall apart from its leaf and be bridged to the
+    graph as a branch of its own. Its nodes are one voxel wide and straight; a leaf's,
+    even a narrow one's, spread across its width or bend along an arched midrib.
+    """
+    if len(branch_nodes) < min_nodes:
+        return False
+    q = branch_nodes - branch_nodes.mean(axis=0)
+    sv = np.linalg.svd(q, compute_uv=False)
+    return float(sv[1]) / math.sqrt(len(q)) < spacing
+
+
 def _axis_xy_at(track: np.ndarray, z: Any) -> np.ndarray:
     """The x, y of a stem's tracked axis (``track``: rows z, x, y) at height(s) ``z``,
     interpolated in z and held constant beyond the track's ends: (2,) or (k, 2)."""
@@ -847,6 +867,9 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
                 and _out_of_column(centroid[tip], stems[is_stem_piece[junction]], axis_tracks[is_stem_piece[junction]],
                                    column_margin) >= min_leaf):
             continue
+        if _is_line(nodes[np.concatenate([by_piece[piece_start[q]:piece_start[q + 1]] for q in chain])],
+                    scale.spacing_m):
+            continue  # a scan line seen apart from its leaf: it joins what it hangs from
         li = len(leaf_chains)
         owner[chain] = li
         if junction >= 0:
