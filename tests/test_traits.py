@@ -222,6 +222,37 @@ def test_a_lone_scan_line_beside_a_leaf_is_not_a_leaf(seed, gap):
         assert area == pytest.approx(0.12 * 0.03, rel=0.15)
 
 
+def _rising_leaf(rng, azimuth, elevation_deg, z, length, width, n, r):
+    """A strip leaving a stem of radius ``r`` at height ``z``, rising at ``elevation_deg``,
+    narrow at its base (a third of ``width``) and full width from 30 % of its length."""
+    e = np.radians(elevation_deg)
+    along = np.array([np.cos(azimuth) * np.cos(e), np.sin(azimuth) * np.cos(e), np.sin(e)])
+    across = np.array([-np.sin(azimuth), np.cos(azimuth), 0.0])
+    u, v = rng.uniform(0.0, length, n), rng.uniform(-0.5, 0.5, n)
+    w = width * np.minimum(1.0, 0.3 + u / (0.3 * length))
+    base = np.array([r * np.cos(azimuth), r * np.sin(azimuth), z])
+    return base + u[:, None] * along + (v * w)[:, None] * across
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_rosette_crown_is_one_stem_on_the_axis_not_its_steep_leaves(seed):
+    # A rosette's stem is a crown 2 cm tall; its inner leaves rise from the crown's top
+    # at 60-65 degrees, and each is a compact column in the slices above it. Those
+    # columns made 2-4 "stems" 15-20 mm wide here (and 4 on the procedural rosettes);
+    # a stem rises from the base, slice after slice, with a ring that changes slowly.
+    rng = np.random.default_rng(seed)
+    r = 0.004
+    crown = _cylinder_cloud(rng, (0.0, 0.0), r, 0.02, 300)
+    leaves = [_rising_leaf(rng, a, elevation, 0.018, length, 0.02, 700, r)
+              for a, elevation, length in ((0.0, 65.0, 0.06), (2.4, 65.0, 0.06), (4.4, 60.0, 0.07),
+                                           (1.2, 25.0, 0.09), (3.5, 20.0, 0.10), (5.4, 25.0, 0.09))]
+    t = traits.extract_traits(np.vstack([crown, *leaves]))
+    (stem,) = t.stems
+    assert np.hypot(*stem.center_xy_m) < 0.001
+    assert stem.diameter_m == pytest.approx(2 * r, rel=0.20) and stem.diameter_resolved
+    assert 5 <= t.leaf_count <= 6
+
+
 def _beam_noise(rng, pts, sigma, lidar_distance=0.35, lidar_height=0.15):
     """Range noise as a turntable LiDAR makes it: every beam lies in a vertical plane
     through the axis (the fan), so a point moves along its own azimuth, rising or

@@ -345,7 +345,8 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
                n_slices: int = 6, min_slices: int = 3) -> tuple[StemBase, ...]:
     """Stems found from the base up: compact clusters that persist over thin slices.
 
-    The ``n_slices`` slices of thickness ``max(2 v, 3 mm)`` start one slice above
+    The ``n_slices`` slices of thickness ``max(v, 3 mm)`` (``max(2 v, 3 mm)`` in a
+    noisy cloud) start one slice above
     ``base_z`` (the lowest is skipped: soil and disk edges). In each slice the points
     are clustered in XY (single linkage at ``max(3 spacing, 2 noise)``); a cluster
     whose extent is at most ``max_diameter_m + 4 noise`` gets a circle fit (Kasa,
@@ -358,9 +359,13 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
     (:func:`_dense_core`), when that core holds half of it; the core is a fallback
     too. Circle fits whose centres lie within one diameter (at least two voxels) of
     each other across slices form a column, fallbacks within two voxels (a mean
-    follows a leaf rising through the slices; a stem's stays put); a column found
-    in at least ``min_slices`` slices is a stem: its centre and diameter are the
-    medians over its slices, and its diameter is unresolved (an upper bound) when
+    follows a leaf rising through the slices; a stem's stays put), one fit a slice
+    (the nearest), two circles' diameters within a factor of two of each other. A
+    column is a stem when it rises from the base: it holds one of the two lowest
+    slices and goes on up, at most one slice missing at a time, for at least
+    ``min_slices`` slices (a rosette's inner leaves, rising steeply from a crown 2 cm
+    tall, are compact columns from the crown's top up). Its centre and diameter are
+    the medians over those slices, and its diameter is unresolved (an upper bound) when
     most of them are fallbacks or circles whose RMS residual exceeds a quarter of
     their radius (a disc of noise, not a ring). A drooping leaf crosses few slices at one place, so
     it is not taken for a stem; with none found, "no stem" is the answer (an empty
@@ -379,9 +384,12 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
     """
     from plantsim.evaluation.traits import fit_circle  # circular import otherwise
 
-    thickness = max(2.0 * scale.voxel_m, 0.003)
-    link = max(3.0 * scale.spacing_m, 2.0 * scale.noise_m)
     noisy = scale.noise_m > 0.5 * scale.spacing_m
+    # A clean slice one voxel (two spacings) thick holds a ring; the centre of a
+    # disc of noise needs twice the points. Thin slices resolve short stems (a
+    # rosette's 2 cm crown).
+    thickness = max((2.0 if noisy else 1.0) * scale.voxel_m, 0.003)
+    link = max(3.0 * scale.spacing_m, 2.0 * scale.noise_m)
     fits: list[_SliceFit] = []
     for k in range(1, n_slices + 1):
         z0 = base_z + k * thickness
@@ -421,13 +429,34 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
     for i, seed in enumerate(fits):
         if used[i]:
             continue
-        members = [j for j, f in enumerate(fits) if not used[j]
-                   and np.linalg.norm(f.centre_xy - seed.centre_xy) <= seed.join_m]
-        slices = {fits[j].slice_index for j in members}
-        if len(slices) < min_slices:
+        # One fit a slice: the nearest the seed's centre. Between two ring fits, the
+        # diameters agree within a factor of two (a stem's section changes slowly;
+        # the leaf bands round its top fit wide arcs and must not join its column).
+        nearest: dict[int, tuple[float, int]] = {}
+        for j, f in enumerate(fits):
+            d = float(np.linalg.norm(f.centre_xy - seed.centre_xy))
+            rings = not (seed.unresolved or f.unresolved)
+            if (used[j] or d > seed.join_m or d >= nearest.get(f.slice_index, (math.inf, -1))[0]
+                    or rings and not 0.5 <= f.diameter_m / seed.diameter_m <= 2.0):
+                continue
+            nearest[f.slice_index] = (d, j)
+        # A stem rises from the base: its column holds one of the two lowest slices
+        # and goes on up without a gap of more than one slice (a leaf may hide one).
+        # A leaf rising steeply from a crown above the base (rosettes) is a compact
+        # column too, but only from the crown's top up; leaf bands stacked higher
+        # are not the column it starts.
+        slices = sorted(nearest)
+        run = 1
+        while run < len(slices) and slices[run] - slices[run - 1] <= 2:
+            run += 1
+        if run < min_slices or slices[0] > 2:
             continue
-        used[members] = True
-        column = [fits[j] for j in members]
+        nearest = {k: nearest[k] for k in slices[:run]}
+        slices = set(nearest)
+        # The column takes every fit within its join (none seeds another column);
+        # its centre and diameter come from its one fit a slice.
+        used[[j for j, f in enumerate(fits) if np.linalg.norm(f.centre_xy - seed.centre_xy) <= seed.join_m]] = True
+        column = [fits[j] for _, j in nearest.values()]
         c = np.median(np.array([f.centre_xy for f in column]), axis=0)
         stems.append(StemBase(center_xy_m=(float(c[0]), float(c[1])),
                               diameter_m=float(np.median([f.diameter_m for f in column])),
