@@ -426,20 +426,23 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
             fits.append(_SliceFit(k, centre, 2 * radius, fit.rms_residual, len(g), join, unresolved))
     stems: list[StemBase] = []
     used = np.zeros(len(fits), dtype=bool)
+    centres = np.array([f.centre_xy for f in fits]).reshape(-1, 2)
     for i, seed in enumerate(fits):
         if used[i]:
             continue
+        within = np.linalg.norm(centres - seed.centre_xy, axis=1) <= seed.join_m
         # One fit a slice: the nearest the seed's centre. Between two ring fits, the
         # diameters agree within a factor of two (a stem's section changes slowly;
         # the leaf bands round its top fit wide arcs and must not join its column).
         nearest: dict[int, tuple[float, int]] = {}
-        for j, f in enumerate(fits):
+        for j in np.flatnonzero(within & ~used):
+            f = fits[j]
             d = float(np.linalg.norm(f.centre_xy - seed.centre_xy))
             rings = not (seed.unresolved or f.unresolved)
-            if (used[j] or d > seed.join_m or d >= nearest.get(f.slice_index, (math.inf, -1))[0]
+            if (d >= nearest.get(f.slice_index, (math.inf, -1))[0]
                     or rings and not 0.5 <= f.diameter_m / seed.diameter_m <= 2.0):
                 continue
-            nearest[f.slice_index] = (d, j)
+            nearest[f.slice_index] = (d, int(j))
         # A stem rises from the base: its column holds one of the two lowest slices
         # and goes on up without a gap of more than one slice (a leaf may hide one).
         # A leaf rising steeply from a crown above the base (rosettes) is a compact
@@ -455,7 +458,7 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
         slices = set(nearest)
         # The column takes every fit within its join (none seeds another column);
         # its centre and diameter come from its one fit a slice.
-        used[[j for j, f in enumerate(fits) if np.linalg.norm(f.centre_xy - seed.centre_xy) <= seed.join_m]] = True
+        used[within] = True
         column = [fits[j] for _, j in nearest.values()]
         c = np.median(np.array([f.centre_xy for f in column]), axis=0)
         stems.append(StemBase(center_xy_m=(float(c[0]), float(c[1])),
