@@ -430,14 +430,14 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
     for i, seed in enumerate(fits):
         if used[i]:
             continue
-        within = np.linalg.norm(centres - seed.centre_xy, axis=1) <= seed.join_m
+        dist = np.linalg.norm(centres - seed.centre_xy, axis=1)
+        within = dist <= seed.join_m
         # One fit a slice: the nearest the seed's centre. Between two ring fits, the
         # diameters agree within a factor of two (a stem's section changes slowly;
         # the leaf bands round its top fit wide arcs and must not join its column).
         nearest: dict[int, tuple[float, int]] = {}
         for j in np.flatnonzero(within & ~used):
-            f = fits[j]
-            d = float(np.linalg.norm(f.centre_xy - seed.centre_xy))
+            f, d = fits[j], float(dist[j])
             rings = not (seed.unresolved or f.unresolved)
             if (d >= nearest.get(f.slice_index, (math.inf, -1))[0]
                     or rings and not 0.5 <= f.diameter_m / seed.diameter_m <= 2.0):
