@@ -201,7 +201,7 @@ def test_a_stem_split_lengthwise_by_a_hidden_band_is_one_stem_to_its_top():
     assert max(t.leaf_lengths_m) == pytest.approx(0.20, rel=0.10)
 
 
-@pytest.mark.parametrize("gap", [0.008, 0.012])
+@pytest.mark.parametrize("gap", [0.008, 0.012, "slanted"])
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_lone_scan_line_beside_a_leaf_is_not_a_leaf(seed, gap):
     # A leaf seen at a grazing angle (a rosette's outer leaves from the side) is
@@ -214,7 +214,11 @@ def test_a_lone_scan_line_beside_a_leaf_is_not_a_leaf(seed, gap):
     leaf_a = _strip(rng, 0.12, 0.03, 8_000, origin=(r, 0.0, 0.10), direction=(1.0, 0.0, 0.0))
     leaf_b = _strip(rng, 0.12, 0.03, 8_000, origin=(-r, 0.0, 0.18), direction=(-1.0, 0.0, 0.0))
     x = np.arange(0.05, 0.11, 0.0004)  # 6 cm of one line, beside leaf a's edge
-    line = np.column_stack([x, np.full_like(x, 0.015 + gap), np.full_like(x, 0.10)])
+    # Slanted: 12 mm off at the stem end, 7 mm at the far end, where its shortest link
+    # to the leaf is. Hung by that end alone, its near end lay 0.18 m from the stem
+    # along the graph, past the leaf's tip, and the line was taken for the leaf.
+    y = 0.015 + (np.interp(x, [0.05, 0.11], [0.012, 0.007]) if gap == "slanted" else np.full_like(x, gap))
+    line = np.column_stack([x, y, np.full_like(x, 0.10)])
     t = traits.extract_traits(np.vstack([stem, leaf_a, leaf_b, line]))
     assert t.leaf_count == 2
     for length, area in zip(t.leaf_lengths_m, t.leaf_areas_m2):

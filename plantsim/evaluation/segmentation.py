@@ -18,7 +18,10 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
 3. Graph: points are merged into voxel centroids of side ``v``; centroids closer
    than ``2 v`` are joined (weight = distance). Components the occlusion cut off
    are bridged to the rest by their shortest link (Livny et al. 2010 join tree
-   fragments the same way), so a leaf tip seen apart from its base stays one leaf.
+   fragments the same way), so a leaf tip seen apart from its base stays one leaf;
+   a component that is one straight scan line is bridged all along its length,
+   from every node about as near the rest as its nearest one (hung by one end, it
+   reached past its leaf's tip).
 4. Roots: stems are found from the base up (:func:`find_stems`: compact XY clusters
    of thin slices that persist over several slices, each with a circle fit); the
    nodes near the stem bases in the lowest slice are the sources of a multi-source
@@ -529,8 +532,14 @@ class Segmentation:
     scale: CloudScale
 
 
-def _graph(nodes: np.ndarray, link: float) -> sparse.csr_matrix:
-    """Radius graph on the nodes, made connected by bridging components (shortest links)."""
+def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
+    """Radius graph on the nodes, made connected by bridging components (shortest links).
+
+    A component that is a lone scan line (:func:`_is_line`, with ``spacing`` given) is
+    bridged from every node whose nearest other node lies within one ``link`` of its
+    shortest bridge: a line that fell apart from its leaf runs beside it, and hung by
+    one end it would reach past the leaf's tip and be taken for the leaf.
+    """
     m = len(nodes)
     tree = cKDTree(nodes)
     pairs = tree.query_pairs(link, output_type="ndarray")
@@ -551,19 +560,20 @@ def _graph(nodes: np.ndarray, link: float) -> sparse.csr_matrix:
         best = dd.argmin(axis=1)
         bd = dd[np.arange(m), best]
         order = np.lexsort((bd, lab))
-        first = order[np.r_[0, np.flatnonzero(np.diff(lab[order])) + 1]]
-        for a in first:
-            if np.isfinite(bd[a]):
-                b = int(jk[a, best[a]])
-                rows.append(np.array([a])); cols.append(np.array([b]))
+        starts = np.r_[0, np.flatnonzero(np.diff(lab[order])) + 1, m]
+        for a, group in zip(order[starts[:-1]], np.split(order, starts[1:-1])):
+            line = spacing is not None and _is_line(nodes[group], spacing)
+            if np.isfinite(bd[a]) and not line:
+                rows.append(np.array([a])); cols.append(np.array([jk[a, best[a]]]))
                 vals.append(np.array([max(float(bd[a]), 1e-12)]))
-            else:
-                outside = np.flatnonzero(lab != lab[a])
-                members = np.flatnonzero(lab == lab[a])
-                d, j = cKDTree(nodes[outside]).query(nodes[members])
-                i = int(np.argmin(d))
-                rows.append(np.array([members[i]])); cols.append(np.array([outside[j[i]]]))
-                vals.append(np.array([max(float(d[i]), 1e-12)]))
+                continue
+            # A lone line (every node near enough), or no other component among the
+            # 32 neighbours (the nearest node of any other).
+            outside = np.flatnonzero(lab != lab[a])
+            d, j = cKDTree(nodes[outside]).query(nodes[group])
+            near = (d <= d.min() + link) if line else (np.arange(len(d)) == np.argmin(d))
+            rows.append(group[near]); cols.append(outside[j[near]])
+            vals.append(np.maximum(d[near], 1e-12))
     return sparse.coo_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m)).tocsr()
 
@@ -781,7 +791,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     stems = find_stems(pts, base_z=s.base_z, scale=scale, max_diameter_m=s.max_stem_diameter_m)
 
     nodes, inverse = voxel_centroids(pts, v)
-    graph = _graph(nodes, s.link_factor * v)
+    graph = _graph(nodes, s.link_factor * v, spacing=scale.spacing_m)
     # Roots: nodes in the lowest slices near each stem base (or the lowest nodes).
     z = nodes[:, 2]
     low = z <= s.base_z + 4.0 * max(2.0 * v, 0.003)
