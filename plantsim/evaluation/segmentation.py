@@ -766,6 +766,26 @@ def _merge_split_leaves(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[n
     return relabel, [midribs[i] for i in keep]
 
 
+def _drop_leaves_without_surface(leaf_label: np.ndarray, midribs: list[np.ndarray], *,
+                                 min_points: int = 3) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Drop the leaves left with fewer than ``min_points`` points (their points stay
+    unlabelled) and number the rest 0.. in order.
+
+    A branch long enough to be a leaf can end up holding almost no points of its own
+    when the nodes it shares go to a longer leaf: two points span no surface, and such
+    a "leaf" had no width or area (NaN), which made the plant's leaf area NaN.
+    """
+    counts = np.bincount(leaf_label[leaf_label >= 0], minlength=len(midribs))
+    keep = np.flatnonzero(counts >= min_points)
+    if len(keep) == len(midribs):
+        return leaf_label, midribs
+    relabel = np.full(len(midribs) + 1, -1, dtype=np.int64)
+    relabel[keep] = np.arange(len(keep))
+    logger.debug("segmentation: %d leaf branches with fewer than %d points dropped",
+                 len(midribs) - len(keep), min_points)
+    return relabel[leaf_label], [midribs[i] for i in keep]
+
+
 def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | None = None
                    ) -> Segmentation:
     """Stems and leaves of a cloud (method in the module docstring).
@@ -936,6 +956,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
             link=2 * s.link_factor * v + 8 * scale.noise_m)
     midribs = [centroid[np.array(ch)] for ch in leaf_chains]
     leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)
+    leaf_label, midribs = _drop_leaves_without_surface(leaf_label, midribs)
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
