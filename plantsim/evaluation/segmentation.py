@@ -858,6 +858,11 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
     # Stems: follow the skeleton up from each stem's root piece.
     by_piece = np.argsort(piece, kind="stable")
     piece_start = np.r_[0, np.cumsum(np.bincount(piece, minlength=n_pieces))]
+
+    def piece_nodes(q: int) -> np.ndarray:
+        """Indices of the nodes making up skeleton piece ``q``."""
+        return by_piece[piece_start[q]:piece_start[q + 1]]
+
     # The column a stem's points fill round its axis: its radius plus the noise band and a voxel.
     column_margin = 2.5 * scale.noise_m + v
     is_stem_piece = np.full(n_pieces, -1, dtype=np.int64)
@@ -904,7 +909,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
             for k in kids:
                 if is_stem_piece[k] >= 0:
                     continue
-                members = nodes[by_piece[piece_start[k]:piece_start[k + 1]], :2]
+                members = nodes[piece_nodes(k), :2]
                 if (centroid[k, 2] > centroid[cur, 2] - bin_w
                         and np.hypot(*(members - axis_xy).T).max() <= column):
                     is_stem_piece[k] = si
@@ -929,8 +934,7 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
                 and _out_of_column(centroid[tip], stems[is_stem_piece[junction]], axis_tracks[is_stem_piece[junction]],
                                    column_margin) >= min_leaf):
             continue
-        if _is_line(nodes[np.concatenate([by_piece[piece_start[q]:piece_start[q + 1]] for q in chain])],
-                    scale.spacing_m):
+        if _is_line(nodes[np.concatenate([piece_nodes(q) for q in chain])], scale.spacing_m):
             continue  # a scan line seen apart from its leaf: it joins what it hangs from
         li = len(leaf_chains)
         owner[chain] = li
