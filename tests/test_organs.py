@@ -250,3 +250,19 @@ def test_cli_traits_shows_a_stem_diameter_the_noise_hides_as_a_bound(tmp_path, c
     (stem,) = json.loads(out.read_text())["stems"]
     assert stem["diameter_resolved"] is False and stem["diameter_m"] > 0.004
     assert "diameter <= " in text and "diameter not resolved" in text
+
+
+def test_a_thin_stems_diameter_is_read_within_the_flare_band_not_up_its_sheath():
+    # Slices one voxel thick: on a sparse cloud (the seed rig's wheat) six of them
+    # reach 4 cm up a 4 mm culm, where a leaf sheath wraps it and the slices' rings are
+    # 7.6 mm. The diameter is read within three diameters of the base, not from the
+    # upper half of whatever the base slices span (that read 6.4 mm for 4.0 there).
+    rng = np.random.default_rng(4)
+    n = 40_000
+    theta, z = rng.uniform(0.0, 2.0 * np.pi, n), rng.uniform(0.0, 0.08, n)
+    radius = np.where(z < 0.03, 0.002, 0.0038)
+    culm = np.column_stack([radius * np.cos(theta), radius * np.sin(theta), z])
+    scale = segmentation.CloudScale(spacing_m=0.002, noise_m=0.0, voxel_m=0.006)
+    (stem,) = segmentation.find_stems(culm, base_z=0.0, scale=scale, max_diameter_m=0.05)
+    assert stem.diameter_resolved
+    assert stem.diameter_m == pytest.approx(0.004, rel=0.05)

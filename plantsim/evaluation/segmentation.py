@@ -249,7 +249,10 @@ class StemBase:
 
     Attributes:
         center_xy_m: (x, y) of the stem axis near the base, metres.
-        diameter_m: median over the base slices of a fitted circle's diameter, metres.
+        diameter_m: the stem's ring diameter above its basal flare
+            (:func:`_diameter_above_flare`), metres; when the noise hides the ring
+            (``diameter_resolved`` False), the median width of its column over the base
+            slices.
         rms_residual_m: median radial RMS residual of those fits, metres.
         n_slices: slices the stem was found in.
         n_points: points in those slices.
@@ -367,9 +370,10 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
     column is a stem when it rises from the base: it holds one of the two lowest
     slices and goes on up, at most one slice missing at a time, for at least
     ``min_slices`` slices (a rosette's inner leaves, rising steeply from a crown 2 cm
-    tall, are compact columns from the crown's top up). Its centre and diameter are
-    the medians over those slices, and its diameter is unresolved (an upper bound) when
-    most of them are fallbacks or circles whose RMS residual exceeds a quarter of
+    tall, are compact columns from the crown's top up). Its centre is the median over
+    those slices; its diameter is read above the basal flare, its rings followed on up
+    (:func:`_diameter_above_flare`). The diameter is unresolved (an upper bound:
+    the median width over those slices) when most of them are fallbacks or circles whose RMS residual exceeds a quarter of
     their radius (a disc of noise, not a ring). A drooping leaf crosses few slices at one place, so
     it is not taken for a stem; with none found, "no stem" is the answer (an empty
     tuple), never a guess.
@@ -464,13 +468,81 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
         used[within] = True
         column = [fits[j] for _, j in nearest.values()]
         c = np.median(np.array([f.centre_xy for f in column]), axis=0)
+        resolved = 2 * sum(f.unresolved for f in column) < len(column)
+        diameter = float(np.median([f.diameter_m for f in column]))
+        if resolved:
+            diameter = _diameter_above_flare(points, base_z, c, column, thickness=thickness, link=link,
+                                             max_diameter_m=max_diameter_m)
         stems.append(StemBase(center_xy_m=(float(c[0]), float(c[1])),
-                              diameter_m=float(np.median([f.diameter_m for f in column])),
+                              diameter_m=diameter,
                               rms_residual_m=float(np.median([f.rms_residual_m for f in column])),
                               n_slices=len(slices), n_points=int(sum(f.n_points for f in column)),
-                              diameter_resolved=2 * sum(f.unresolved for f in column) < len(column)))
+                              diameter_resolved=resolved))
     stems.sort(key=lambda s: s.center_xy_m)
     return tuple(stems)
+
+
+# A stem's base flares into a root collar (a maize's from 25 mm to 14 mm over its
+# lowest 25 mm, about two diameters); its diameter is read above it.
+FLARE_DIAMETERS = 3.0
+
+
+def _diameter_above_flare(points: np.ndarray, base_z: float, centre_xy: np.ndarray,
+                          column: list[_SliceFit], *, thickness: float, link: float,
+                          max_diameter_m: float) -> float:
+    """A stem's diameter above its basal flare, metres.
+
+    The stem's ring fits are followed on up from its base column, slice by slice,
+    to ``FLARE_DIAMETERS`` times the column's median diameter above ``base_z``: in
+    each slice the cluster (single linkage ``link``) nearest the stem's centre gets a
+    circle fit, kept while it is a ring (RMS residual at most a quarter of its radius,
+    on an arc spanning its radius) within a factor of two of the last ring's diameter
+    and centred within one diameter of the stem's centre; two slices in a row without
+    one end the climb (leaves leave the stem there). The diameter is the median of
+    the rings in the upper half of the heights climbed, up to that height (thick base
+    slices, on a sparse cloud, can reach past it): the flare, where a stem widens
+    into its root collar, lies in the lower half (phenotyping measures stem diameter
+    above the collar, not at the soil). A column whose rings stop at its base slices
+    (a rosette's 2 cm crown) reads the median of the upper half of those.
+    """
+    from plantsim.evaluation.traits import fit_circle  # circular import otherwise
+
+    rings = [(f.slice_index, f.diameter_m) for f in column if not f.unresolved]
+    if not rings:
+        return float(np.median([f.diameter_m for f in column]))
+    top_z = base_z + FLARE_DIAMETERS * float(np.median([d for _, d in rings]))
+    k, last, misses = max(f.slice_index for f in column), max(rings)[1], 0
+    while misses < 2 and base_z + (k + 1) * thickness < top_z:
+        k += 1
+        z0 = base_z + k * thickness
+        near = (np.abs(points[:, 2] - z0 - 0.5 * thickness) <= 0.5 * thickness) & (
+            np.hypot(*(points[:, :2] - centre_xy).T) <= last + 2.0 * link)
+        found = False
+        sl = points[near, :2]
+        groups = _xy_clusters(sl, link, 6) if len(sl) >= 6 else []
+        if groups:
+            g = min(groups, key=lambda g: float(np.hypot(*(sl[g].mean(axis=0) - centre_xy))))
+            try:
+                fit = fit_circle(sl[g])
+            except ValueError:
+                fit = None
+            if fit is not None:
+                d = 2 * fit.radius
+                found = (d <= max_diameter_m and fit.radius <= 2 * _robust_extent(sl[g])
+                         and fit.rms_residual <= 0.25 * fit.radius and 0.5 <= d / last <= 2.0
+                         and np.hypot(*(np.array(fit.center_xy) - centre_xy)) <= d)
+        if found:
+            rings.append((k, d))
+            last, misses = d, 0
+        else:
+            misses += 1
+    heights = (np.array([i for i, _ in rings], dtype=np.float64) + 0.5) * thickness
+    diameters = np.array([d for _, d in rings])
+    band = heights <= top_z - base_z  # base slices may reach past the flare band (thick slices)
+    if band.any():
+        heights, diameters = heights[band], diameters[band]
+    upper = heights >= 0.5 * (heights.min() + heights.max())
+    return float(np.median(diameters[upper]))
 
 
 # --------------------------------------------------------------------------

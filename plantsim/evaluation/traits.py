@@ -750,8 +750,10 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     there). Then:
 
     - height: :func:`robust_height`.
-    - stems: count, centre and diameter from the base slices (median circle fit over
-      the slices a stem persists in); "no stem" (count 0, diameter NaN and a note)
+    - stems: count and centre from the base slices (median circle fit over the
+      slices a stem persists in), diameter above the basal flare (the median ring in
+      the upper half of the stem's lowest three diameters; a maize's root collar is
+      25 mm wide where its stem is 14 mm); "no stem" (count 0, diameter NaN and a note)
       when no column persists; a note for each stem whose diameter the noise hides
       (most base slices noise-dominated: the value is an upper bound). Stem height:
       the top of the stem's points (those its skeleton walk kept) above ``base_z``
