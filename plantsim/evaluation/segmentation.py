@@ -347,6 +347,18 @@ def _dense_core(xy: np.ndarray, radius: float, *, min_share: float = 0.5) -> np.
     return core if len(core) >= min_share * len(xy) else None
 
 
+def _plausible_circle(fit, extent: float, max_diameter_m: float) -> bool:
+    """A slice's circle fit can be a stem: no wider than ``max_diameter_m``, and on an
+    arc spanning at least half its radius (a short arc fits any large circle)."""
+    return 2 * fit.radius <= max_diameter_m and fit.radius <= 2 * extent
+
+
+def _ring_residual(fit) -> bool:
+    """A ring's radial RMS residual is at most a quarter of its radius; a noise-filled
+    disc's is not."""
+    return fit.rms_residual <= 0.25 * fit.radius
+
+
 def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diameter_m: float,
                n_slices: int = 6, min_slices: int = 3) -> tuple[StemBase, ...]:
     """Stems found from the base up: compact clusters that persist over thin slices.
@@ -417,8 +429,7 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
             except ValueError:
                 continue
             radius = fit.radius
-            # A short arc fits any large circle: a stem's points span about a radius.
-            fallback = cored or 2 * radius > max_diameter_m or radius > 2 * extent
+            fallback = cored or not _plausible_circle(fit, extent, max_diameter_m)
             if fallback:
                 radius = 0.5 * extent  # fall back to the extent (noise-dominated slice)
                 centre = xy.mean(axis=0)
@@ -428,8 +439,7 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
             # is a mean, which a leaf band rising through the slices drags along with
             # it, so it must stay within two voxels to be one column.
             join = 2 * scale.voxel_m if fallback else max(2 * radius, 2 * scale.voxel_m)
-            # A ring's residual is a small part of its radius; a noise-filled disc's is not.
-            unresolved = fallback or fit.rms_residual > 0.25 * radius
+            unresolved = fallback or not _ring_residual(fit)
             fits.append(_SliceFit(k, centre, 2 * radius, fit.rms_residual, len(g), join, unresolved))
     stems: list[StemBase] = []
     used = np.zeros(len(fits), dtype=bool)
@@ -528,8 +538,8 @@ def _diameter_above_flare(points: np.ndarray, base_z: float, centre_xy: np.ndarr
                 fit = None
             if fit is not None:
                 d = 2 * fit.radius
-                found = (d <= max_diameter_m and fit.radius <= 2 * _robust_extent(sl[g])
-                         and fit.rms_residual <= 0.25 * fit.radius and 0.5 <= d / last <= 2.0
+                found = (_plausible_circle(fit, _robust_extent(sl[g]), max_diameter_m)
+                         and _ring_residual(fit) and 0.5 <= d / last <= 2.0
                          and np.hypot(*(np.array(fit.center_xy) - centre_xy)) <= d)
         if found:
             rings.append((k, d))
