@@ -490,6 +490,37 @@ def test_a_cloud_with_no_stem_in_the_slice_gives_nan_not_zero():
     # "No stem" is said honestly, with the scale it was judged at.
     assert any(note.startswith("no stem: no compact column persists") for note in t.notes)
     assert t.height_m == pytest.approx(0.3)
+    # A flat strip spans no volume and, seen from its own lowest points, has no branch:
+    # both NaNs carry a note.
+    assert math.isnan(t.convex_hull_volume_m3) and math.isnan(t.leaf_area_m2) and t.leaf_count == 0
+    assert any(note.startswith("convex hull volume NaN: the points above the ground clearance are flat")
+               for note in t.notes)
+    assert any(note.startswith("no leaf:") and "lowest points" in note for note in t.notes)
+
+
+def test_a_bare_stem_has_no_leaf_and_says_so():
+    # A 0.4 m stem with nothing on it: one stem, no leaf. Leaf area is NaN (not
+    # measured), never 0 (measured bare), and a note says why, with the length a
+    # branch needed (10 % of the height).
+    rng = np.random.default_rng(1)
+    t = traits.extract_traits(_cylinder_cloud(rng, (0.0, 0.0), 0.004, 0.4, 20_000))
+    assert t.stem_count == 1 and t.leaf_count == 0
+    assert math.isnan(t.leaf_area_m2) and math.isnan(t.leaf_length_m) and math.isnan(t.leaf_width_m)
+    (note,) = [n for n in t.notes if n.startswith("no leaf:")]
+    assert "(40 mm) beyond the stem" in note
+    # A stem with one leaf says nothing of the kind.
+    leaf = _strip(rng, 0.12, 0.02, 3_000, origin=(0.004, 0.0, 0.25))
+    t = traits.extract_traits(np.vstack([_cylinder_cloud(rng, (0.0, 0.0), 0.004, 0.4, 20_000), leaf]))
+    assert t.leaf_count == 1 and not any(n.startswith("no leaf") for n in t.notes)
+
+
+def test_a_flat_clouds_hull_failure_is_logged_in_one_line(caplog):
+    pts = np.column_stack([np.random.default_rng(2).uniform(0, 0.1, (300, 2)), np.full(300, 0.2)])
+    with caplog.at_level("WARNING", logger="plantsim.evaluation.traits"):
+        assert math.isnan(traits.convex_hull_volume(pts))
+    (record,) = caplog.records
+    assert record.getMessage().startswith("convex hull failed (flat or degenerate cloud), volume is NaN: QH")
+    assert "\n" not in record.getMessage()
 
 
 def test_a_straight_slice_component_is_not_taken_for_a_stem(caplog):

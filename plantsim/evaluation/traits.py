@@ -584,7 +584,10 @@ def convex_hull_volume(points: Any) -> float:
     try:
         return float(ConvexHull(_hull_candidates(pts)).volume)
     except QhullError as exc:
-        logger.warning("convex hull failed (flat or degenerate cloud), volume is NaN: %s", exc)
+        # Qhull's message runs to forty lines of options and coordinates; its first
+        # line names the failure.
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        logger.warning("convex hull failed (flat or degenerate cloud), volume is NaN: %s", first)
         return _NAN
 
 
@@ -812,6 +815,16 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     stem_tops = [robust_height(sp, base_z=s.base_z, scale=seg.scale, kept=np.ones(len(sp), dtype=bool))
                  for sp in (seg.points[seg.stem_label == i] for i in range(len(stems))) if len(sp)]
     stem_height = max(stem_tops) if stem_tops and stems else _NAN
+    if not leaves:
+        frac = segmentation.SegmentationSettings().min_leaf_fraction
+        top = float(seg.points[:, 2].max() - s.base_z)  # the height segment_organs scales by
+        start = "the stem" if stems else "the cloud's lowest points"
+        notes.append(f"no leaf: no skeleton branch reaches {100 * frac:.0f} % of the plant height "
+                     f"({1e3 * frac * top:.0f} mm) beyond {start}; leaf area, length and width are NaN")
+    hull_volume = convex_hull_volume(above)
+    if math.isnan(hull_volume):
+        notes.append("convex hull volume NaN: the points above the ground clearance are flat "
+                     "(they span no volume)")
     cell = max(s.grid_cell, 2 * seg.scale.voxel_m)
     return PlantTraits(
         height_m=height,
@@ -823,7 +836,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         leaves=tuple(leaves),
         leaf_width_m=max((lf.width_m for lf in leaves), default=_NAN),
         leaf_length_m=max((lf.length_m for lf in leaves), default=_NAN),
-        convex_hull_volume_m3=convex_hull_volume(above),
+        convex_hull_volume_m3=hull_volume,
         projected_area_xy_m2=projected_area_xy(above, cell=cell),
         stem_count=len(stems),
         stem_height_m=stem_height,
