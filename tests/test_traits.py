@@ -265,6 +265,30 @@ def _rising_leaf(rng, azimuth, elevation_deg, z, length, width, n, r):
 
 
 @pytest.mark.parametrize("seed", range(4))
+def test_a_leaf_cut_off_from_its_stem_is_bridged_to_the_stem_not_to_a_leaf_tip_below_it(seed):
+    # Leaves hide a stem's sides above 0.15 m and its -y half above 0.24 m: the top
+    # leaf (at 0.33 m, toward -y) lies 12 mm from the stem's last visible half, a
+    # component of its own. A steep narrow leaf below ends 29 mm under it. The graph
+    # bridged the top leaf both ways, and the steep tip's path to its outer part was
+    # the shorter: the leaf fell in two, one "leaf" 0.45 m long (seed 1).
+    rng = np.random.default_rng(seed)
+    r = 0.007
+    stem = _cylinder_cloud(rng, (0.0, 0.0), r, 0.42, 40_000)
+    azimuth, z = np.arctan2(stem[:, 1], stem[:, 0]), stem[:, 2]
+    hidden = (z > 0.15) & (np.abs(np.cos(azimuth)) > np.cos(np.radians(50.0)))
+    hidden |= (z > 0.24) & (stem[:, 1] < 0)
+    leaves = [_rising_leaf(rng, np.pi / 2, 20.0, 0.15, 0.25, 0.05, 6000, r),
+              _rising_leaf(rng, -np.pi / 2, 30.0, 0.33, 0.25, 0.05, 6000, r),
+              _rising_leaf(rng, -np.pi / 2 - 0.5, 60.0, 0.19, 0.20, 0.006, 1500, r)]
+    t = traits.extract_traits(np.vstack([stem[~hidden], *leaves]))
+    assert t.stem_count == 1 and t.leaf_count == 3
+    # Lengths from the stem's axis: each leaf's own plus the stem radius, and the
+    # first centimetre of the junction's level set.
+    assert sorted(t.leaf_lengths_m) == pytest.approx([0.20, 0.25, 0.25], abs=0.04)
+    assert sorted(t.leaf_areas_m2)[1:] == pytest.approx([0.25 * 0.05 * 0.9] * 2, rel=0.15)
+
+
+@pytest.mark.parametrize("seed", range(4))
 def test_a_rosette_crown_is_one_stem_on_the_axis_not_its_steep_leaves(seed):
     # A rosette's stem is a crown 2 cm tall; its inner leaves rise from the crown's top
     # at 60-65 degrees, and each is a compact column in the slices above it. Those

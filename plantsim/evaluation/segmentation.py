@@ -645,12 +645,18 @@ def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> s
         starts = np.r_[0, np.flatnonzero(np.diff(lab[order])) + 1, m]
         for a, group in zip(order[starts[:-1]], np.split(order, starts[1:-1])):
             line = spacing is not None and _is_line(nodes[group], spacing)
-            if np.isfinite(bd[a]) and not line:
+            # The shortest link among the 32 neighbours is the component's shortest
+            # link only where no node's 32 neighbours end nearer than it. A thin leaf's
+            # tip has few nodes of its own about it and finds a leaf 3 cm off while the
+            # stem's dense nodes, 12 mm from that leaf's base, see only each other.
+            # Bridged by the tip, the leaf is reached through it and split in two.
+            exact = np.isfinite(bd[a]) and bd[a] <= dk[group, -1].min()
+            if exact and not line:
                 rows.append(np.array([a])); cols.append(np.array([jk[a, best[a]]]))
                 vals.append(np.array([max(float(bd[a]), 1e-12)]))
                 continue
-            # A lone line (every node near enough), or no other component among the
-            # 32 neighbours (the nearest node of any other).
+            # A lone line (every node near enough), or no certain shortest link among
+            # the 32 neighbours (the nearest node of any other).
             outside = np.flatnonzero(lab != lab[a])
             d, j = cKDTree(nodes[outside]).query(nodes[group])
             near = (d <= d.min() + link) if line else (np.arange(len(d)) == np.argmin(d))
