@@ -820,7 +820,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         top = float(seg.points[:, 2].max() - s.base_z)  # the height segment_organs scales by
         start = "the stem" if stems else "the cloud's lowest points"
         notes.append(f"no leaf: no skeleton branch reaches {100 * frac:.0f} % of the plant height "
-                     f"({1e3 * frac * top:.0f} mm) beyond {start}; leaf area, length and width are NaN")
+                     f"({1e3 * frac * top:.0f} mm) beyond {start}; leaf area, length and width are not measured (NaN)")
     hull_volume = convex_hull_volume(above)
     if math.isnan(hull_volume):
         notes.append("convex hull volume NaN: the points above the ground clearance are flat "
