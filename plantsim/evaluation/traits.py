@@ -766,8 +766,11 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       column is walked up through the leaves round the axis).
     - leaves: one per skeleton tip branch; per leaf length, width, area and
       inclination (:func:`_leaf_measures`); ``leaf_area_m2`` their sum (one side).
+      With no branch long enough to be a leaf: count 0, area, length and width
+      NaN (not measured, never 0) and a note naming the length a branch needed.
     - convex hull volume (Qhull) and projected XY area (occupancy grid, cell
-      ``max(grid_cell, 2 voxels)``) of the points above the ground clearance.
+      ``max(grid_cell, 2 voxels)``) of the points above the ground clearance; a
+      flat cloud's volume is NaN, with a note.
 
     Args:
         points_turntable: (n, 3) float64, metres, turntable frame, base at
