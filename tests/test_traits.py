@@ -531,7 +531,7 @@ def test_a_bare_stem_has_no_leaf_and_says_so():
     assert t.stem_count == 1 and t.leaf_count == 0
     assert math.isnan(t.leaf_area_m2) and math.isnan(t.leaf_length_m) and math.isnan(t.leaf_width_m)
     (note,) = [n for n in t.notes if n.startswith("no leaf:")]
-    assert "(40 mm) beyond the stem" in note
+    assert "reaches 40 mm (the shortest leaf counted) beyond the stem" in note
     # A stem with one leaf says nothing of the kind.
     leaf = _strip(rng, 0.12, 0.02, 3_000, origin=(0.004, 0.0, 0.25))
     t = traits.extract_traits(np.vstack([_cylinder_cloud(rng, (0.0, 0.0), 0.004, 0.4, 20_000), leaf]))

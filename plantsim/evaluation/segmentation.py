@@ -36,7 +36,7 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    it: where a leaf wrapped round the stem hides bands of it from every view, the
    stem's level sets are half-rings side by side, and the stem's top lies above
    one of them. Every other tip whose branch (tip to the junction
-   below it) is longer than ``min_leaf_length`` is a leaf tip, and so is a tip
+   below it) is longer than ``min_leaf_length_m`` is a leaf tip, and so is a tip
    hanging from a stem piece that lies that far out of the stem's column (its
    radius plus the noise band and a voxel): a noisy stem fills a column several
    centimetres wide whose level sets hold most of a short leaf (a bean's
@@ -60,7 +60,7 @@ Leaves that touch over more than about a bin along their length, or that wrap th
 stem (sheaths), merge until the level sets separate them: their bases are counted
 with the stem and the leaf count falls by one for every pair that stays joined.
 Range noise above about a tenth of the leaf width blurs neighbouring leaves into
-one; leaves shorter than ``min_leaf_length`` are not counted.
+one; leaves shorter than ``min_leaf_length_m`` are not counted.
 """
 
 from __future__ import annotations
@@ -567,7 +567,7 @@ class SegmentationSettings:
         link_factor: graph edges join voxel centroids closer than this many voxels.
         bin_factor: level-set bin width, in voxels.
         min_leaf_fraction: a branch shorter than this fraction of the plant height
-            (or 4 bins, whichever is longer) is a spur, not a leaf.
+            (or 2 bins, whichever is longer) is a spur, not a leaf.
         max_stem_diameter_m: widest plausible stem, metres (a biological bound).
     """
 
@@ -602,6 +602,8 @@ class Segmentation:
         leaf_midribs: per leaf, (k, 3) float64 metres: skeleton centroids from the
             junction with the stem (first) to the tip (last).
         scale: the cloud's scale.
+        min_leaf_length_m: metres: the length a branch needed to be a leaf
+            (``min_leaf_fraction`` of the height, at least two skeleton steps).
     """
 
     points: np.ndarray
@@ -612,6 +614,7 @@ class Segmentation:
     stem_tops_m: np.ndarray
     leaf_midribs: tuple[np.ndarray, ...]
     scale: CloudScale
+    min_leaf_length_m: float
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
@@ -1054,4 +1057,4 @@ def segment_organs(points_turntable: Any, *, settings: SegmentationSettings | No
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
     return Segmentation(points=pts, kept=kept, stem_label=stem_label, leaf_label=leaf_label,
                         stems=stems, stem_tops_m=np.array(stem_tops, dtype=np.float64).reshape(-1, 3),
-                        leaf_midribs=tuple(midribs), scale=scale)
+                        leaf_midribs=tuple(midribs), scale=scale, min_leaf_length_m=float(min_leaf))

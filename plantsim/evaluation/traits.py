@@ -767,7 +767,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     - leaves: one per skeleton tip branch; per leaf length, width, area and
       inclination (:func:`_leaf_measures`); ``leaf_area_m2`` their sum (one side).
       With no branch long enough to be a leaf: count 0, area, length and width
-      NaN (not measured, never 0) and a note naming the length a branch needed.
+      NaN (not measured, never 0) and a note naming the length a branch needed
+      (``Segmentation.min_leaf_length_m``).
     - convex hull volume (Qhull) and projected XY area (occupancy grid, cell
       ``max(grid_cell, 2 voxels)``) of the points above the ground clearance; a
       flat cloud's volume is NaN, with a note.
@@ -819,15 +820,14 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                  for sp in (seg.points[seg.stem_label == i] for i in range(len(stems))) if len(sp)]
     stem_height = max(stem_tops) if stem_tops and stems else _NAN
     if not leaves:
-        frac = segmentation.SegmentationSettings().min_leaf_fraction
-        top = float(seg.points[:, 2].max() - s.base_z)  # the height segment_organs scales by
         start = "the stem" if stems else "the cloud's lowest points"
-        notes.append(f"no leaf: no skeleton branch reaches {100 * frac:.0f} % of the plant height "
-                     f"({1e3 * frac * top:.0f} mm) beyond {start}; leaf area, length and width are not measured (NaN)")
+        notes.append(f"no leaf: no skeleton branch reaches {1e3 * seg.min_leaf_length_m:.0f} mm (the "
+                     f"shortest leaf counted) beyond {start}; leaf area, length and width are not "
+                     "measured (NaN)")
     hull_volume = convex_hull_volume(above)
     if math.isnan(hull_volume):
         notes.append("convex hull volume NaN: the points above the ground clearance are flat "
-                     "(they span no volume)")
+                     "or degenerate (they span no volume)")
     cell = max(s.grid_cell, 2 * seg.scale.voxel_m)
     return PlantTraits(
         height_m=height,
