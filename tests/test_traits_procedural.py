@@ -25,9 +25,11 @@ import logging
 import numpy as np
 import pytest
 
-from plantsim.evaluation import traits
+from plantsim.evaluation import segmentation, traits
+from plantsim.evaluation.metrics import MeshProximity
+from plantsim.evaluation.organ_match import match_leaves
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
+from plantsim.plant.procedural import PART_LEAF, make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
@@ -151,3 +153,31 @@ def test_no_leaf_is_left_without_a_surface(monkeypatch):
     assert est.leaf_count > 0
     assert np.isfinite(est.leaf_areas_m2).all() and np.isfinite(est.leaf_widths_m).all()
     assert est.leaf_area_m2 == pytest.approx(sum(est.leaf_areas_m2))
+
+
+def _leaf_match(name: str, ideal: bool, step_deg: float):
+    """The segmentation's leaves matched to the true leaves: each point's truth is the
+    leaf of its nearest face of the placed mesh (the cloud's frame)."""
+    points, truth = _cloud(name, ideal, step_deg)
+    plant = PLANTS[name]()
+    placed = plant_from_arrays(plant.vertices_m, plant.faces)
+    assert len(placed.faces) == len(plant.faces)  # the face labels still line up
+    above = points[points[:, 2] >= traits.TraitSettings().ground_clearance]  # as extract_traits segments
+    seg = segmentation.segment_organs(above)
+    leaf_of_face = np.where(plant.face_part == PART_LEAF, plant.face_organ, -1)
+    true_label = leaf_of_face[MeshProximity(placed.vertices_turntable, placed.faces).query(seg.points).triangle_index]
+    return match_leaves(seg.leaf_label, true_label, n_true_leaves=len(truth["leaves"]))
+
+
+def test_an_ideal_maizes_leaves_are_its_true_leaves_one_to_one():
+    # The count could be right with a leaf split and two merged; each of the 9 found
+    # leaves shares over half of its points' union with one true leaf (IoU 0.86 mean).
+    m = _leaf_match("maize", *IDEAL)
+    assert (m.true_positives, m.false_positives, m.false_negatives) == (9, 0, 0), m.summary()
+    assert m.segmentation_quality >= 0.8, m.summary()
+
+
+def test_an_ideal_wheats_leaves_mostly_match_its_true_leaves():
+    # 13 of 16 match today (three are split or merged): a floor against regressions.
+    m = _leaf_match("wheat", *IDEAL)
+    assert m.true_positives >= 12, m.summary()
