@@ -17,6 +17,10 @@ wheat (one stem of four found, its 4 mm hidden in a noisy column 5 cm wide, 8 le
 height +5.3 %); the dicot's
 ideal leaf area (-31 %) and its realistic leaf count (10 for 24: the leaflets of a leaf merge).
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
+
+Counts can meet their target with leaves split and merged, so the ideal maize and wheat are
+also matched leaf by leaf to their true leaves (IoU of points > 0.5,
+:mod:`plantsim.evaluation.organ_match`).
 """
 
 import functools
