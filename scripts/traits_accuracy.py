@@ -23,8 +23,7 @@ import time
 import numpy as np
 
 from plantsim.evaluation import segmentation, traits
-from plantsim.evaluation.metrics import MeshProximity
-from plantsim.evaluation.organ_match import LeafMatch, match_leaves
+from plantsim.evaluation.organ_match import LeafMatch, leaf_labels_from_mesh, match_leaves
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import PART_LEAF, ProceduralPlant, make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RangeFilter, RunConfig
@@ -52,8 +51,8 @@ def leaf_match(points_turntable: np.ndarray, plant: ProceduralPlant) -> LeafMatc
         raise SystemExit("placing dropped faces: the organ labels no longer line up")
     above = points_turntable[points_turntable[:, 2] >= traits.TraitSettings().ground_clearance]
     seg = segmentation.segment_organs(above)
-    leaf_of_face = np.where(plant.face_part == PART_LEAF, plant.face_organ, -1)
-    true_label = leaf_of_face[MeshProximity(placed.vertices_turntable, placed.faces).query(seg.points).triangle_index]
+    true_label = leaf_labels_from_mesh(seg.points, placed.vertices_turntable, placed.faces,
+                                       np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
     return match_leaves(seg.leaf_label, true_label, n_true_leaves=len(plant.traits["leaves"]))
 
 

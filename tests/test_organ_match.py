@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-from plantsim.evaluation.organ_match import match_leaves
+from plantsim.evaluation.organ_match import leaf_labels_from_mesh, match_leaves
 
 
 def test_a_perfect_segmentation_matches_every_leaf_whatever_its_numbering():
@@ -99,3 +99,15 @@ def test_matches_equal_a_brute_force_over_point_sets_and_are_one_to_one(seed):
 def test_bad_labels_say_what_is_wrong(found, true, kwargs, message):
     with pytest.raises(ValueError, match=message):
         match_leaves(found, true, **kwargs)
+
+
+def test_a_points_true_leaf_is_its_nearest_faces():
+    # Two unit squares (two triangles each) 1 m apart in z: faces 0-1 leaf 3, faces 2-3 no leaf.
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    vertices = np.vstack([square, square + [0, 0, 1]])
+    faces = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    points = np.array([[0.2, 0.7, 0.1], [0.9, 0.1, 0.45], [0.5, 0.5, 0.55], [0.3, 0.3, 2.0]])
+    labels = leaf_labels_from_mesh(points, vertices, faces, np.array([3, 3, -1, -1]))
+    assert labels.tolist() == [3, 3, -1, -1]
+    with pytest.raises(ValueError, match=r"face_leaf must have shape \(4,\)"):
+        leaf_labels_from_mesh(points, vertices, faces, np.array([3, 3, -1]))

@@ -30,8 +30,7 @@ import numpy as np
 import pytest
 
 from plantsim.evaluation import segmentation, traits
-from plantsim.evaluation.metrics import MeshProximity
-from plantsim.evaluation.organ_match import match_leaves
+from plantsim.evaluation.organ_match import leaf_labels_from_mesh, match_leaves
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import PART_LEAF, make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RunConfig
@@ -168,8 +167,8 @@ def _leaf_match(name: str, ideal: bool, step_deg: float):
     assert len(placed.faces) == len(plant.faces)  # the face labels still line up
     above = points[points[:, 2] >= traits.TraitSettings().ground_clearance]  # as extract_traits segments
     seg = segmentation.segment_organs(above)
-    leaf_of_face = np.where(plant.face_part == PART_LEAF, plant.face_organ, -1)
-    true_label = leaf_of_face[MeshProximity(placed.vertices_turntable, placed.faces).query(seg.points).triangle_index]
+    true_label = leaf_labels_from_mesh(seg.points, placed.vertices_turntable, placed.faces,
+                                       np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
     return match_leaves(seg.leaf_label, true_label, n_true_leaves=len(truth["leaves"]))
 
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LeafMatch", "match_leaves"]
+__all__ = ["LeafMatch", "leaf_labels_from_mesh", "match_leaves"]
 
 # Kirillov et al. 2019: IoU above one half makes a match unique.
 MATCH_IOU = 0.5
@@ -124,3 +124,22 @@ def match_leaves(found_label: Any, true_label: Any, *, n_true_leaves: int | None
                      true_positives=tp, false_positives=fp, false_negatives=fn,
                      recognition_quality=float(rq), segmentation_quality=sq,
                      panoptic_quality=float(rq * sq) if pairs else (0.0 if denom > 0 else float("nan")))
+
+
+def leaf_labels_from_mesh(points: Any, vertices: Any, faces: Any, face_leaf: Any) -> np.ndarray:
+    """Each point's true leaf: the label of its nearest face (exact point-to-triangle
+    distance, :class:`plantsim.evaluation.metrics.MeshProximity`).
+
+    Args:
+        points: (n, 3) float64, metres, the mesh's frame (a scan's cloud: the placed mesh).
+        vertices: (v, 3) float64, metres.
+        faces: (f, 3) integer rows of ``vertices``.
+        face_leaf: (f,) int, each face's leaf index, -1 for faces on no leaf.
+
+    Returns:
+        (n,) int64 leaf index of each point, -1 for none.
+    """
+    from plantsim.evaluation.metrics import MeshProximity
+
+    labels = _labels("face_leaf", face_leaf, len(np.asarray(faces)))
+    return labels[MeshProximity(vertices, faces).query(points).triangle_index]
