@@ -20,12 +20,10 @@ import argparse
 import logging
 import time
 
-import numpy as np
-
-from plantsim.evaluation import segmentation, traits
-from plantsim.evaluation.organ_match import LeafMatch, leaf_labels_from_mesh, match_leaves
+from plantsim.evaluation import traits
+from plantsim.evaluation.organ_match import match_procedural_leaves
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import PART_LEAF, ProceduralPlant, make_dicot, make_maize, make_rosette, make_wheat
+from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RangeFilter, RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
@@ -41,19 +39,6 @@ def _err(estimate: float, truth: float, target: float) -> str:
 
 def _mm(value: float) -> str:
     return "none" if value != value else f"{1e3 * value:.1f}"
-
-
-def leaf_match(points_turntable: np.ndarray, plant: ProceduralPlant) -> LeafMatch:
-    """The segmentation's leaves (of the points extract_traits segments) matched to the
-    plant's true leaves; the placed mesh is in the cloud's frame."""
-    placed = plant_from_arrays(plant.vertices_m, plant.faces)
-    if len(placed.faces) != len(plant.faces):
-        raise SystemExit("placing dropped faces: the organ labels no longer line up")
-    above = points_turntable[points_turntable[:, 2] >= traits.TraitSettings().ground_clearance]
-    seg = segmentation.segment_organs(above)
-    true_label = leaf_labels_from_mesh(seg.points, placed.vertices_turntable, placed.faces,
-                                       np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
-    return match_leaves(seg.leaf_label, true_label, n_true_leaves=len(plant.traits["leaves"]))
 
 
 def main() -> None:
@@ -87,7 +72,7 @@ def main() -> None:
                   f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm"
                   f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}  "
                   f"{time.perf_counter() - t0:.1f} s", flush=True)
-            print(f"{'':16s} {'':7s}  leaves matched: {leaf_match(pts, pl).summary()}", flush=True)
+            print(f"{'':16s} {'':7s}  leaves matched: {match_procedural_leaves(pts, pl).summary()}", flush=True)
 
 
 if __name__ == "__main__":

@@ -29,10 +29,10 @@ import logging
 import numpy as np
 import pytest
 
-from plantsim.evaluation import segmentation, traits
-from plantsim.evaluation.organ_match import leaf_labels_from_mesh, match_leaves
+from plantsim.evaluation import traits
+from plantsim.evaluation.organ_match import match_procedural_leaves
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import PART_LEAF, make_dicot, make_maize, make_rosette, make_wheat
+from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
@@ -159,17 +159,8 @@ def test_no_leaf_is_left_without_a_surface(monkeypatch):
 
 
 def _leaf_match(name: str, ideal: bool, step_deg: float):
-    """The segmentation's leaves matched to the true leaves: each point's truth is the
-    leaf of its nearest face of the placed mesh (the cloud's frame)."""
-    points, truth = _cloud(name, ideal, step_deg)
-    plant = PLANTS[name]()
-    placed = plant_from_arrays(plant.vertices_m, plant.faces)
-    assert len(placed.faces) == len(plant.faces)  # the face labels still line up
-    above = points[points[:, 2] >= traits.TraitSettings().ground_clearance]  # as extract_traits segments
-    seg = segmentation.segment_organs(above)
-    true_label = leaf_labels_from_mesh(seg.points, placed.vertices_turntable, placed.faces,
-                                       np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
-    return match_leaves(seg.leaf_label, true_label, n_true_leaves=len(truth["leaves"]))
+    points, _ = _cloud(name, ideal, step_deg)
+    return match_procedural_leaves(points, PLANTS[name]())
 
 
 def test_an_ideal_maizes_leaves_are_its_true_leaves_one_to_one():

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LeafMatch", "leaf_labels_from_mesh", "match_leaves"]
+__all__ = ["LeafMatch", "leaf_labels_from_mesh", "match_leaves", "match_procedural_leaves"]
 
 # Kirillov et al. 2019: IoU above one half makes a match unique.
 MATCH_IOU = 0.5
@@ -143,3 +143,32 @@ def leaf_labels_from_mesh(points: Any, vertices: Any, faces: Any, face_leaf: Any
 
     labels = _labels("face_leaf", face_leaf, len(np.asarray(faces)))
     return labels[MeshProximity(vertices, faces).query(points).triangle_index]
+
+
+def match_procedural_leaves(points_turntable: Any, plant: Any) -> LeafMatch:
+    """The leaves :func:`plantsim.evaluation.traits.extract_traits` finds in a scan of a
+    procedural plant, matched to the plant's true leaves.
+
+    The plant is placed as a scan places it (:func:`plantsim.plant.mesh.plant_from_arrays`),
+    so its faces lie in the cloud's turntable frame; each point's truth is the leaf of its
+    nearest face (:func:`leaf_labels_from_mesh`).
+
+    Args:
+        points_turntable: (n, 3) float64, metres: the scan's plant points.
+        plant: a :class:`plantsim.plant.procedural.ProceduralPlant` (face labels and traits).
+
+    Returns:
+        LeafMatch.
+    """
+    from plantsim.evaluation.traits import segment_for_traits
+    from plantsim.plant.mesh import plant_from_arrays
+    from plantsim.plant.procedural import PART_LEAF
+
+    placed = plant_from_arrays(plant.vertices_m, plant.faces)
+    if len(placed.faces) != len(plant.faces):
+        raise ValueError(f"placing the plant dropped {len(plant.faces) - len(placed.faces)} faces: "
+                         "its face labels no longer line up with the mesh")
+    seg = segment_for_traits(points_turntable)
+    true_label = leaf_labels_from_mesh(seg.points, placed.vertices_turntable, placed.faces,
+                                       np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
+    return match_leaves(seg.leaf_label, true_label, n_true_leaves=len(plant.traits["leaves"]))

@@ -63,7 +63,7 @@ __all__ = [
     "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
     "TraitSettings", "compare_traits", "connected_components", "convex_hull_volume",
     "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width", "plant_height",
-    "projected_area_xy", "robust_height", "stem_distances", "top_voxel_min_points", "trait_error",
+    "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
     "traits_from_mesh", "traits_from_truth",
 ]
 
@@ -745,6 +745,35 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     return length, float(np.percentile(outer, 90)), area, incl
 
 
+def _segment_above(pts: np.ndarray, s: TraitSettings) -> tuple[np.ndarray, "segmentation.Segmentation"]:
+    """The points above the ground clearance and their segmentation, as traits read them."""
+    from plantsim.evaluation import segmentation
+
+    above = pts[pts[:, 2] >= s.base_z + s.ground_clearance]
+    if len(above) < 17:
+        raise ValueError(f"points_turntable holds {len(above)} points above the ground clearance; "
+                         "traits need at least 17")
+    return above, segmentation.segment_organs(
+        above, settings=segmentation.SegmentationSettings(
+            base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter))
+
+
+def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None = None
+                       ) -> "segmentation.Segmentation":
+    """The segmentation :func:`extract_traits` reads its organs from: the points above
+    ``base_z + ground_clearance``, segmented with the settings' base and widest stem
+    (:func:`plantsim.evaluation.segmentation.segment_organs`).
+
+    Args:
+        points_turntable: (n, 3) float64, metres, turntable frame.
+        settings: extraction settings (defaults if None).
+
+    Returns:
+        Segmentation (its ``points`` are the kept points above the clearance).
+    """
+    return _segment_above(_as_cloud(points_turntable), settings or TraitSettings())[1]
+
+
 def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None) -> PlantTraits:
     """Extract every trait from a cloud, without the mesh.
 
@@ -781,18 +810,9 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     Returns:
         PlantTraits; NaN where a trait could not be measured, with notes saying why.
     """
-    from plantsim.evaluation import segmentation
-
     s = settings or TraitSettings()
-    pts = _as_cloud(points_turntable)
-    above = pts[pts[:, 2] >= s.base_z + s.ground_clearance]
+    above, seg = _segment_above(_as_cloud(points_turntable), s)
     notes: list[str] = []
-    if len(above) < 17:
-        raise ValueError(f"points_turntable holds {len(above)} points above the ground clearance; "
-                         "traits need at least 17")
-    seg = segmentation.segment_organs(
-        above, settings=segmentation.SegmentationSettings(
-            base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter))
     height = robust_height(above, base_z=s.base_z, kept=seg.kept, scale=seg.scale)
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points,
