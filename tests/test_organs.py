@@ -1,5 +1,6 @@
 """Organ segmentation, traits on exact procedural plants, stem-base placement, rig fit."""
 
+import dataclasses
 import json
 import logging
 
@@ -266,3 +267,18 @@ def test_a_thin_stems_diameter_is_read_within_the_flare_band_not_up_its_sheath()
     (stem,) = segmentation.find_stems(culm, base_z=0.0, scale=scale, max_diameter_m=0.05)
     assert stem.diameter_resolved
     assert stem.diameter_m == pytest.approx(0.004, rel=0.05)
+
+
+def test_an_unresolved_stems_column_is_its_measured_width():
+    # A resolved stem's points lie within its ring's radius plus the noise band and a
+    # voxel; an unresolved stem's diameter is the width of its noisy column already,
+    # so the band is not added twice.
+    ring = segmentation.StemBase(center_xy_m=(0.0, 0.0), diameter_m=0.014, rms_residual_m=0.0005,
+                                 n_slices=5, n_points=500)
+    noisy = dataclasses.replace(ring, diameter_m=0.042, diameter_resolved=False)
+    assert segmentation._column_radius(ring, 0.016) == pytest.approx(0.007 + 0.016)
+    assert segmentation._column_radius(noisy, 0.016) == pytest.approx(0.021)
+    track = np.array([[0.0, 0.01, 0.0], [1.0, 0.01, 0.0]])  # axis at x = 10 mm, vertical
+    point = np.array([0.04, 0.0, 0.3])
+    assert segmentation._out_of_column(point, noisy, track, 0.016) == pytest.approx(0.03 - 0.021)
+    assert segmentation._out_of_column(point, ring, track, 0.016) == pytest.approx(0.03 - 0.023)

@@ -12,15 +12,16 @@ prints the whole table). Targets not met yet are strict ``xfail``s, so a fix tha
 reaches one turns the test red until it is promoted to a plain assertion:
 ideal rosette leaf area
 (-42 % / -64 %) and 30-leaf count (12: its inner leaves, a cup, stay merged); realistic
-wheat (one stem of four found, its 4 mm hidden in a noisy column 5 cm wide, 8 leaves for
-16, area +194 %) and realistic rosettes (one leaf each, area -62 % / -80 %, the 12-leaf
-height +5.3 %); the dicot's
-ideal leaf area (-31 %) and its realistic leaf count (10 for 24: the leaflets of a leaf merge).
+wheat area (+232 %: one stem of four found, its 4 mm hidden in a noisy column 5 cm wide,
+the other tillers read as wide leaves) and realistic rosettes (one leaf each, area
+-62 % / -80 %, the 12-leaf height +5.3 %); the dicot's ideal leaf area (-31 %) and its
+realistic leaf count (13 for 24: the leaflets of a leaf merge).
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
 
-Counts can meet their target with leaves split and merged, so the ideal maize and wheat are
-also matched leaf by leaf to their true leaves (IoU of points > 0.5,
-:mod:`plantsim.evaluation.organ_match`).
+Counts can meet their target with leaves split and merged, so the ideal maize and wheat
+and the realistic dicot are also matched leaf by leaf to their true leaves (IoU of points
+> 0.5, :mod:`plantsim.evaluation.organ_match`); the realistic maize and wheat meet their
+count with 0 and 2 leaves matched.
 """
 
 import functools
@@ -30,9 +31,9 @@ import numpy as np
 import pytest
 
 from plantsim.evaluation import traits
-from plantsim.evaluation.organ_match import match_procedural_leaves
+from plantsim.evaluation.organ_match import leaf_labels_from_mesh, match_procedural_leaves
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
+from plantsim.plant.procedural import PART_LEAF, make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
@@ -100,7 +101,9 @@ def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.20
 
 
-@pytest.mark.parametrize("name", ["maize"] + _miss(("wheat",), ("rosette12",), ("rosette30",), ("dicot",)))
+# The maize (10 for 9) and the wheat (10 for 16) meet the count by number only: 0 and
+# 2 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md).
+@pytest.mark.parametrize("name", ["maize", "wheat"] + _miss(("rosette12",), ("rosette30",), ("dicot",)))
 def test_leaf_count_from_a_realistic_scan_within_forty_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.40
@@ -135,6 +138,28 @@ def test_stem_height_from_an_ideal_scan_within_five_percent():
         est, truth = _scan(name, *IDEAL)
         stem_height = max(st["height_m"] for st in truth["stems"])
         assert _rel(est.stem_height_m, stem_height) <= 0.05, name
+
+
+def test_a_noisy_maize_stems_walk_stops_near_its_top():
+    # A noisy stem's column is its measured width (the noise is in it), and its axis
+    # follows only pieces that fit in that column: the walk stopped at 0.60 m on a
+    # 0.42 m stem before, having bent off up the top leaf; 0.51 m today.
+    est, truth = _scan("maize", *REALISTIC)
+    assert _rel(est.stem_height_m, truth["stems"][0]["height_m"]) <= 0.25
+
+
+def test_a_noisy_maize_keeps_most_of_its_leaf_points_off_the_stem():
+    # The column once reached 37 mm from the axis of a 14 mm stem (the noise band
+    # added to a width that already held it): 52 % of the leaves' points were stem;
+    # 28 % today (a leaf's base still shares the stem's level sets).
+    points, _ = _cloud("maize", *REALISTIC)
+    plant = PLANTS["maize"]()
+    seg = traits.segment_for_traits(points)
+    placed = plant_from_arrays(plant.vertices_m, plant.faces)
+    true_leaf = leaf_labels_from_mesh(seg.points, placed.vertices_turntable, placed.faces,
+                                      np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
+    on_leaf = true_leaf >= 0
+    assert (seg.stem_label[on_leaf] >= 0).mean() <= 0.35
 
 
 def test_a_noisy_maize_stem_is_still_found():
@@ -172,6 +197,15 @@ def test_an_ideal_maizes_leaves_are_its_true_leaves_one_to_one():
 
 
 def test_an_ideal_wheats_leaves_mostly_match_its_true_leaves():
-    # 13 of 16 match today (three are split or merged): a floor against regressions.
+    # 14 of 16 match today (two are split or merged; 13 before a stem's axis followed
+    # only pieces that fit in its column): a floor against regressions.
     m = _leaf_match("wheat", *IDEAL)
-    assert m.true_positives >= 12, m.summary()
+    assert m.true_positives >= 14, m.summary()
+
+
+def test_a_noisy_dicots_leaflets_are_found_apart_from_its_stem():
+    # Its unresolved stem's column once reached 2.5 noise and a voxel past the noisy
+    # width it was measured at, taking the leaflets' bases: 3 of 10 found leaves
+    # matched a true leaflet; 6 of 13 today: a floor against regressions.
+    m = _leaf_match("dicot", *REALISTIC)
+    assert m.true_positives >= 6, m.summary()
