@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LeafMatch", "leaf_labels_from_mesh", "match_leaves", "match_procedural_leaves"]
+__all__ = ["LeafMatch", "leaf_labels_from_mesh", "match_leaves", "match_procedural_leaves",
+           "procedural_leaf_labels"]
 
 # Kirillov et al. 2019: IoU above one half makes a match unique.
 MATCH_IOU = 0.5
@@ -145,13 +146,37 @@ def leaf_labels_from_mesh(points: Any, vertices: Any, faces: Any, face_leaf: Any
     return labels[MeshProximity(vertices, faces).query(points).triangle_index]
 
 
-def match_procedural_leaves(points_turntable: Any, plant: Any) -> LeafMatch:
-    """The leaves :func:`plantsim.evaluation.traits.extract_traits` finds in a scan of a
-    procedural plant, matched to the plant's true leaves.
+def procedural_leaf_labels(points_turntable: Any, plant: Any) -> np.ndarray:
+    """Each point's true leaf in a scan of a procedural plant.
 
     The plant is placed as a scan places it (:func:`plantsim.plant.mesh.plant_from_arrays`),
     so its faces lie in the cloud's turntable frame; each point's truth is the leaf of its
     nearest face (:func:`leaf_labels_from_mesh`).
+
+    Args:
+        points_turntable: (n, 3) float64, metres: points of a scan of ``plant``.
+        plant: a :class:`plantsim.plant.procedural.ProceduralPlant` (face labels).
+
+    Returns:
+        (n,) int64 leaf index of each point, -1 for none (stem, ear).
+
+    Raises:
+        ValueError: placing the plant dropped faces (the labels would not line up).
+    """
+    from plantsim.plant.mesh import plant_from_arrays
+    from plantsim.plant.procedural import PART_LEAF
+
+    placed = plant_from_arrays(plant.vertices_m, plant.faces)
+    if len(placed.faces) != len(plant.faces):
+        raise ValueError(f"placing the plant dropped {len(plant.faces) - len(placed.faces)} faces: "
+                         "its face labels no longer line up with the mesh")
+    return leaf_labels_from_mesh(points_turntable, placed.vertices_turntable, placed.faces,
+                                 np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
+
+
+def match_procedural_leaves(points_turntable: Any, plant: Any) -> LeafMatch:
+    """The leaves :func:`plantsim.evaluation.traits.extract_traits` finds in a scan of a
+    procedural plant, matched to the plant's true leaves (:func:`procedural_leaf_labels`).
 
     Args:
         points_turntable: (n, 3) float64, metres: the scan's plant points.
@@ -161,14 +186,7 @@ def match_procedural_leaves(points_turntable: Any, plant: Any) -> LeafMatch:
         LeafMatch.
     """
     from plantsim.evaluation.traits import segment_for_traits
-    from plantsim.plant.mesh import plant_from_arrays
-    from plantsim.plant.procedural import PART_LEAF
 
-    placed = plant_from_arrays(plant.vertices_m, plant.faces)
-    if len(placed.faces) != len(plant.faces):
-        raise ValueError(f"placing the plant dropped {len(plant.faces) - len(placed.faces)} faces: "
-                         "its face labels no longer line up with the mesh")
     seg = segment_for_traits(points_turntable)
-    true_label = leaf_labels_from_mesh(seg.points, placed.vertices_turntable, placed.faces,
-                                       np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
-    return match_leaves(seg.leaf_label, true_label, n_true_leaves=len(plant.traits["leaves"]))
+    return match_leaves(seg.leaf_label, procedural_leaf_labels(seg.points, plant),
+                        n_true_leaves=len(plant.traits["leaves"]))
