@@ -667,7 +667,8 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
                   scale: "segmentation.CloudScale | None" = None) -> float:
     """Height of the plant that one stray point, or the noise's upper tail, cannot set.
 
-    Method: statistical outlier removal (Rusu et al. 2008), then the highest
+    Method: the segmentation's outlier removal (statistical, Rusu et al. 2008, sparse
+    clean surface kept: :func:`plantsim.evaluation.segmentation.kept_points`), then the highest
     centroid of the voxels (side ``cell``; default the cloud's working resolution
     ``max(2 spacing, 1.5 noise)``, :func:`plantsim.evaluation.segmentation
     .estimate_scale`) holding at least ``min_points`` points (default
@@ -692,7 +693,10 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
     from plantsim.evaluation import segmentation
 
     pts = _as_cloud(points_turntable)
-    pts = pts[segmentation.outlier_mask(pts) if kept is None else kept]
+    if kept is None:
+        kept, scale_kept = segmentation.kept_points(pts)
+        scale = scale if scale is not None else scale_kept
+    pts = pts[kept]
     if scale is None and (cell is None or min_points is None):
         scale = segmentation.estimate_scale(pts)
     if cell is None:
@@ -706,13 +710,16 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
     return float(top - base_z)
 
 
-def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float, float, float]:
+def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None = None
+                   ) -> tuple[float, float, float, float]:
     """Length, width, area and inclination of one segmented leaf.
 
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
     reach beyond its last centroid. Width: per midrib node, the robust extent
     (2nd to 98th percentile) of the node's points across the midrib, along their main
-    in-plane axis; the 90th percentile over the nodes of the outer four fifths of
+    in-plane axis, with ``link`` (the skeleton's link) only over the cross-section's runs
+    in the leaf's own plane (another leaf crossing it at a node is left out:
+    :func:`plantsim.evaluation.segmentation.node_frames`); the 90th percentile over the nodes of the outer four fifths of
     the midrib (the largest is where a neighbour touches; the base is sheath). Area: the triangulated ribbon between the
     two margins, i.e. sum over midrib segments of the mean of the two node widths
     times the segment length (a leaf surface unrolled along its midrib, as in the
@@ -727,7 +734,7 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray) -> tuple[float, float
     seg = np.diff(midrib, axis=0)
     seg_len = np.linalg.norm(seg, axis=1)
     # Per node its width; each point to its nearest midrib node.
-    _, _, widths, node = node_frames(points, midrib)
+    _, _, widths, node = node_frames(points, midrib, link=link)
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     beyond = float(max(0.0, ((points[node == len(midrib) - 1] - midrib[-1]) @ tip_dir).max()))
     length = float(seg_len.sum() + beyond)
@@ -830,7 +837,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     leaves: list[Leaf] = []
     for i, midrib in enumerate(seg.leaf_midribs):
         lp = seg.points[seg.leaf_label == i]
-        length, width, area, incl = _leaf_measures(lp, midrib)
+        length, width, area, incl = _leaf_measures(lp, midrib, link=seg.link_m)
         leaves.append(Leaf(index=i, length_m=length, width_m=width, n_points=int(len(lp)),
                            area_m2=area, inclination_deg=incl))
     # Each stem's top by the plant height's own rule (robust_height on its points): the
