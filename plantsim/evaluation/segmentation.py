@@ -688,7 +688,7 @@ class Segmentation:
     leaf_midribs: tuple[np.ndarray, ...]
     scale: CloudScale
     min_leaf_length_m: float
-    link_m: float = math.nan
+    link_m: float
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
