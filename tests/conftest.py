@@ -2,11 +2,24 @@
 
 from __future__ import annotations
 
+import importlib.util
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_script(name: str):
+    """The module of ``scripts/<name>.py`` (scripts are not a package), loaded fresh."""
+    spec = importlib.util.spec_from_file_location(name, REPO_ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
 
 # The hardware tests: the emulators answer the drivers from threads of the test process.
 _HARDWARE_MODULES = ("test_dxl_", "test_urg_", "test_rig_scan", "test_rig_urg")

@@ -9,20 +9,9 @@ correction is a difference of two variances, and with 10 mm noise on a 10 mm str
 difference), which is why the script calls it an upper bound.
 """
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("leaf_width_noise", REPO_ROOT / "scripts" / "leaf_width_noise.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from conftest import load_script
 
 
 def _strip(sigma_m, beam_dir, n=100_000, width_m=0.010, seed=0):
@@ -35,7 +24,7 @@ def _strip(sigma_m, beam_dir, n=100_000, width_m=0.010, seed=0):
 
 
 def test_noise_across_the_strip_in_its_plane_is_taken_away():
-    strip_widths_m = _script().strip_widths_m
+    strip_widths_m = load_script("leaf_width_noise").strip_widths_m
     points, dirs, midrib = _strip(0.005, (0.0, 1.0, 0.0))
     raw, less = strip_widths_m(points, dirs, midrib, link_m=0.004, sigma_m=0.005)
     assert raw == pytest.approx(np.sqrt(0.010 ** 2 + 12 * 0.005 ** 2), rel=0.05)  # 20 mm
@@ -43,7 +32,7 @@ def test_noise_across_the_strip_in_its_plane_is_taken_away():
 
 
 def test_noise_along_the_normal_leaves_the_width_alone():
-    strip_widths_m = _script().strip_widths_m
+    strip_widths_m = load_script("leaf_width_noise").strip_widths_m
     points, dirs, midrib = _strip(0.002, (0.0, 0.0, 1.0))
     raw, less = strip_widths_m(points, dirs, midrib, link_m=0.004, sigma_m=0.002)
     assert raw == pytest.approx(0.010, rel=0.05)

@@ -1,6 +1,5 @@
 """Tests of the procedural plant generator: traits checked against the mesh itself."""
 
-import importlib.util
 import io
 import itertools
 import json
@@ -9,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from conftest import load_script
 
 from plantsim.plant.procedural import PART_EAR, PART_LEAF, PART_STEM, MaizeParams, WheatParams, make_maize, make_wheat, to_stl_bytes, traits_to_json
 
@@ -292,15 +292,8 @@ def test_arrays_are_read_only():
 # ------------------------------------------------------------------- bundled assets
 
 
-def _load_script():
-    spec = importlib.util.spec_from_file_location("make_plants", REPO_ROOT / "scripts" / "make_plants.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_committed_assets_equal_a_fresh_regeneration(tmp_path):
-    written = _load_script().write_plants(tmp_path)
+    written = load_script("make_plants").write_plants(tmp_path)
     names = sorted(path.name for path, _ in written)
     assert names == ["maize.stl", "maize.traits.json", "wheat.stl", "wheat.traits.json"]
     for name in names:
@@ -495,8 +488,8 @@ def test_dicot_invalid_parameters_are_rejected(params, message):
 def test_extra_plants_are_written_with_labels_and_truth(tmp_path):
     from plantsim.evaluation.evaluate import truth_from_labelled_mesh
 
-    written = _load_script().write_extra_plants(tmp_path)
-    assert len(written) == 2 * len(_load_script().EXTRA_PLANTS)
+    written = load_script("make_plants").write_extra_plants(tmp_path)
+    assert len(written) == 2 * len(load_script("make_plants").EXTRA_PLANTS)
     truth = json.loads((tmp_path / "dicot.obj.traits.json").read_text())
     labelled = truth_from_labelled_mesh(tmp_path / "dicot.obj", n_samples_per_m2=0)
     assert labelled["leaf_count"] == len(truth["leaves"]) == 24
