@@ -358,3 +358,33 @@ def test_mixed_pixels_in_a_scan_form_a_continuum():
                   lidar=lidar, lines=60)
     r1 = single.range_m[single.status == 0]
     assert not ((r1 > 0.305) & (r1 < 0.495)).any()
+
+
+def test_range_sigma_at_least_reads_the_noise_back_from_the_intensity_and_never_above_it():
+    # The received-power law: the intensity the model writes, min(1, P sat^2), gives P back
+    # below saturation, and so the very sigma the noise was drawn with. Without the
+    # intensity (a real URG gives none) a white target head-on, the most power at that
+    # range, bounds it from below for any reflectance and incidence.
+    from plantsim.sensor.model import intensity_from_power, range_sigma_at_least, received_power
+
+    rng = np.random.default_rng(0)
+    lidar, model = URG_04LX_UG01, SensorModel()
+    r = np.r_[rng.uniform(0.02, 0.1, 100), rng.uniform(0.1, 4.0, 1900)]  # saturated within 0.1 m
+    cos = rng.uniform(0.05, 1.0, 2000)
+    rho = rng.uniform(0.05, 1.0, 2000)
+    true = range_sigma(r, cos, lidar, reflectance=rho)
+    intensity = intensity_from_power(received_power(r, cos, rho), model)
+    below = intensity < 1.0
+    assert below.sum() > 1000 and (~below).sum() > 10
+    got = range_sigma_at_least(r, lidar, intensity=intensity, model=model)
+    np.testing.assert_allclose(got[below], true[below], rtol=1e-12)
+    assert np.all(got <= true * (1 + 1e-12))
+    blind = range_sigma_at_least(r, lidar)
+    assert np.all(blind <= true * (1 + 1e-12)) and np.all(blind >= lidar.range_sigma_m)
+    np.testing.assert_allclose(range_sigma_at_least(r, lidar), range_sigma(r, np.ones_like(r), lidar))
+    # The datasheet band grows with incidence, which a cloud does not record: head-on.
+    worst = PRESETS["urg-04lx-ug01-worst-case"]
+    np.testing.assert_allclose(range_sigma_at_least(np.array([0.5, 2.0]), worst), [0.030, 0.060])
+    assert np.all(range_sigma_at_least(r, worst) <= range_sigma(r, cos, worst) * (1 + 1e-12))
+    with pytest.raises(ValueError, match="an intensity needs the model that wrote it"):
+        range_sigma_at_least(r, lidar, intensity=intensity)

@@ -104,6 +104,33 @@ def base_to_turntable(points_base: np.ndarray, turntable_angle_rad: np.ndarray) 
     return points_turntable
 
 
+def beam_dirs_turntable(points_turntable: np.ndarray, turntable_angle_rad: np.ndarray,
+                        T_base_lidar: np.ndarray) -> np.ndarray:
+    """Unit direction of each point's beam, from the LiDAR to the point, in the turntable frame.
+
+    At the turntable angle a point was reconstructed with, the LiDAR's origin
+    (``T_base_lidar``'s translation) sits at ``Rz(-theta) t_base_lidar`` in the turntable
+    frame; the beam runs from there to the point. The direction along which the
+    sensor's range noise moves the point.
+
+    Args:
+      points_turntable: (n, 3) float64 metres.
+      turntable_angle_rad: (n,) float64 radians, the angle each point was reconstructed with.
+      T_base_lidar: (4, 4) float64.
+
+    Returns:
+      (n, 3) float64 unit vectors (a point at the LiDAR's origin gets a zero vector).
+    """
+    points_turntable = np.asarray(points_turntable, dtype=np.float64).reshape(-1, 3)
+    theta = np.asarray(turntable_angle_rad, dtype=np.float64).reshape(-1)
+    if len(theta) != len(points_turntable):
+        raise ValueError(f"turntable_angle_rad has {len(theta)} angles for {len(points_turntable)} points")
+    t_base_lidar = np.asarray(T_base_lidar, dtype=np.float64)[:3, 3]
+    d = points_turntable - base_to_turntable(np.broadcast_to(t_base_lidar, points_turntable.shape), theta)
+    norm = np.linalg.norm(d, axis=1, keepdims=True)
+    return np.divide(d, norm, out=np.zeros_like(d), where=norm > 0)
+
+
 def reconstruct(raw: RawScan, *, intensity: np.ndarray | None = None) -> PointCloud:
     """The point cloud of a raw scan's returns, in the turntable frame.
 

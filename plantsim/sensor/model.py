@@ -292,6 +292,42 @@ def range_bias(range_m: np.ndarray, reflectance: np.ndarray | float, lidar: Lida
     return np.broadcast_to(bias, np.broadcast_shapes(r.shape, rho.shape, t.shape)).copy()
 
 
+def range_sigma_at_least(range_m: np.ndarray, lidar: LidarSpec, *, intensity: np.ndarray | None = None,
+                         model: SensorModel | None = None) -> np.ndarray:
+    """The least standard deviation :func:`range_sigma` can have had at returns a cloud records.
+
+    ``"received-power"``: the power is read back from the intensity
+    (:func:`intensity_from_power` is ``min(1, P saturation_range_m^2)``, exact below
+    saturation); a missing intensity takes the most power a target can return at that
+    range, a white one head-on, ``1 / r^2``, and a saturated one at least the
+    saturation's. ``"datasheet-band"``: the
+    band at normal incidence, ``max(range_sigma_m, range_sigma_rel r)`` (the incidence is
+    not recorded). Either way no return had less noise than this.
+
+    Args:
+      range_m: (n,) float64 metres, the measured ranges.
+      lidar: the sensor's noise parameters.
+      intensity: (n,) intensity in [0, 1] as the sensor model wrote it, or None.
+      model: the sensor model that wrote the intensity (its ``saturation_range_m``);
+        needed with ``intensity``.
+
+    Returns:
+      (n,) float64 metres.
+    """
+    r = np.maximum(np.asarray(range_m, dtype=np.float64), 1e-6)
+    if lidar.noise_law == "datasheet-band":
+        return np.maximum(lidar.range_sigma_m, lidar.range_sigma_rel * r)
+    power = 1.0 / r ** 2  # a white target head-on: the most power, the least noise
+    if intensity is not None:
+        if model is None:
+            raise ValueError("range_sigma_at_least: an intensity needs the model that wrote it")
+        i = np.asarray(intensity, dtype=np.float64)
+        below = np.isfinite(i) & (i < 1.0)
+        saturated = np.maximum(power, 1.0 / model.saturation_range_m ** 2)
+        power = np.where(below, np.where(below, i, 0.0) / model.saturation_range_m ** 2, saturated)
+    return range_sigma(r, np.ones_like(r), lidar, power=power)
+
+
 def intensity_from_power(power: np.ndarray, model: SensorModel) -> np.ndarray:
     """Received power (m^-2) to intensity in [0, 1]; 1 is receiver saturation."""
     return np.minimum(1.0, power * model.saturation_range_m ** 2)
