@@ -21,6 +21,7 @@ import logging
 import time
 
 from plantsim.evaluation import traits
+from plantsim.evaluation.evaluate import scan_range_noise
 from plantsim.evaluation.organ_match import match_procedural_leaves
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
@@ -62,12 +63,16 @@ def main() -> None:
                 config = config.replace(range_filter=RangeFilter(enabled=True))
             result = run_scan(config, plant=plant_from_arrays(pl.vertices_m, pl.faces))
             pts = result.cloud.plant_only().points_turntable
-            est, tr = traits.extract_traits(pts), pl.traits
+            est, tr = traits.extract_traits(pts, range_noise_m=scan_range_noise(result)[0]), pl.traits
+            unresolved = [lf for lf in est.leaves if lf.width_resolved is False]
             label = setting + ("+filter" if "range_filter" in result.parts else "")
             print(f"{label:16s} {step:g} deg  {name:18s} n={len(pts):7d}  "
                   f"height {_err(est.height_m, tr['height_m'], t_h)}  "
                   f"leaves {_err(est.leaf_count, len(tr['leaves']), t_n)}  "
-                  f"area {_err(est.leaf_area_m2, tr['leaf_area_m2'], t_a)}  "
+                  f"area {_err(est.leaf_area_m2, tr['leaf_area_m2'], t_a)}"
+                  + (f" (widths read the noise on {len(unresolved)}/{est.leaf_count} leaves, "
+                     f"{100 * sum(lf.area_m2 for lf in unresolved) / est.leaf_area_m2:.0f} % of the area)"
+                     if unresolved else "") + "  "
                   f"stems {est.stem_count}/{len(tr['stems'])} "
                   f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm"
                   f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}  "

@@ -32,6 +32,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO_ROOT))
 sys.path.insert(0, str(REPO_ROOT / "scripts"))
 
+from plantsim.evaluation.evaluate import scan_range_noise  # noqa: E402
 from plantsim.evaluation.traits import convex_hull_volume, extract_traits  # noqa: E402
 from plantsim.plant.mesh import load_plant, plant_from_arrays  # noqa: E402
 from plantsim.plant.procedural import make_dicot, make_maize, make_wheat  # noqa: E402
@@ -98,14 +99,18 @@ def truth_of(plant) -> dict:
     }
 
 
-def estimate_of(points) -> tuple[dict, tuple[str, ...]]:
+def estimate_of(points, range_noise_m=None) -> tuple[dict, tuple[str, ...]]:
     """Traits of a cloud, keyed as TRAITS, and the method's notes."""
-    e = extract_traits(points)
+    e = extract_traits(points, range_noise_m=range_noise_m)
     out = {key: float(getattr(e, key)) for key, *_ in TRAITS if hasattr(e, key)}
     out["median_leaf_width_m"] = _nan_median(getattr(e, "leaf_widths_m", ()))
     out["mean_leaf_inclination_deg"] = _nan_mean(getattr(e, "leaf_inclinations_deg", ()))
     # A stem whose diameter the noise hides reads its noisy column's width: an upper bound.
     out["stem_diameter_upper_bound"] = any(not st.diameter_resolved for st in e.stems)
+    # Leaves whose width the range noise alone reads half of (Leaf.width_resolved False).
+    unresolved = [lf for lf in e.leaves if lf.width_resolved is False]
+    out["unresolved_leaves"] = (len(unresolved), len(e.leaves),
+                                sum(lf.area_m2 for lf in unresolved) / e.leaf_area_m2 if unresolved else 0.0)
     return out, tuple(getattr(e, "notes", ()))
 
 
@@ -114,7 +119,7 @@ def _scan(config: RunConfig, plant) -> tuple[dict, tuple[str, ...], int, float]:
     result = run_scan(config, plant=plant)
     points = result.cloud.plant_only().points_turntable
     try:
-        estimate, notes = estimate_of(points)
+        estimate, notes = estimate_of(points, scan_range_noise(result)[0])
     except Exception as exc:  # noqa: BLE001 - any failure of the method is a finding, not a stop
         # The method failing on one cloud is a row of "not found" and a note naming the error.
         estimate, notes = {}, (f"trait extraction failed: {type(exc).__name__}: {exc}",)
@@ -135,6 +140,20 @@ def _cell(value, truth, scale, key) -> str:
     return f"{shown} ({100 * abs(value - truth) / abs(truth):.1f} %)"
 
 
+# Leaf traits read from the widths: marked where the range noise alone reads half a
+# leaf's width or more (plantsim.evaluation.traits.Leaf.width_resolved).
+UNRESOLVED_MARKED = ("leaf_area_m2", "leaf_width_m", "median_leaf_width_m")
+
+
+def _unresolved(cell: str, unresolved, key: str) -> str:
+    if not unresolved or not unresolved[0]:
+        return cell
+    k, n, share = unresolved
+    if key == "leaf_area_m2":
+        return f"{cell} ({100 * share:.0f} % of it on {k} of {n} leaves whose widths the noise reads)"
+    return f"{cell} ({k} of {n} leaves' widths read the noise)"
+
+
 def rows_for(name: str, truth: dict | None, scans: dict, paper_name: str | None) -> list[str]:
     rows = []
     for key, label, scale, unit in TRAITS:
@@ -153,6 +172,9 @@ def rows_for(name: str, truth: dict | None, scans: dict, paper_name: str | None)
         cells = [_cell(scans[s][0].get(key), r, scale, key) if s in scans else "not run" for s, *_ in SETTINGS]
         if key == "stem_diameter_m":
             cells = [f"<= {c} (upper bound)" if s in scans and scans[s][0].get("stem_diameter_upper_bound") else c
+                     for c, (s, *_) in zip(cells, SETTINGS)]
+        if key in UNRESOLVED_MARKED:
+            cells = [_unresolved(c, scans[s][0].get("unresolved_leaves"), key) if s in scans else c
                      for c, (s, *_) in zip(cells, SETTINGS)]
         rows.append(f"| {name} | {label}{f' [{unit}]' if unit else ''} | {truth_text} | "
                     + " | ".join(cells) + f" | {paper_text} |")

@@ -196,7 +196,8 @@ def test_threads_are_checked_capped_at_the_cores_and_taken_from_the_scan(box_mes
     real = metrics.cloud_mesh_metrics
     monkeypatch.setattr(metrics, "cloud_mesh_metrics",
                         lambda *a, **k: used.append(k["workers"]) or real(*a, **k))
-    result = SimpleNamespace(cloud=cloud, plant=plant, config=SimpleNamespace(threads=1))
+    result = SimpleNamespace(cloud=cloud, plant=plant, parts={},
+                             config=SimpleNamespace(threads=1, lidar=None, sensor_model=None))
     evaluate.evaluate_scan(result, options=evaluate.EvaluationOptions(n_surface_samples=100))
     result.config.threads = None
     evaluate.evaluate_scan(result, options=evaluate.EvaluationOptions(n_surface_samples=100))

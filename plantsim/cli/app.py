@@ -112,6 +112,9 @@ def cmd_scan(args: argparse.Namespace) -> int:
     print(summary_line(result, path, time.perf_counter() - t0))
     if result.evaluation is not None:
         print(_evaluation_line(result.evaluation))
+        # What the trait errors above do not say: a bound, a width the noise reads.
+        for note in (result.evaluation.estimate.notes if result.evaluation.estimate is not None else ()):
+            print(f"traits note: {note}")
         if not _opt(args, "no_pictures"):
             print(_error_picture_line(result, f"{path}.error.png"))
     return 0

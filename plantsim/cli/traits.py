@@ -1,7 +1,11 @@
 """``plantsim traits CLOUD [--json] [-o traits.json]``: the traits of any cloud.
 
 The cloud (LAS/LAZ/PLY/PCD/TXT, read by :func:`plantsim.cloud.export.read_cloud`) must
-be in the turntable frame, metres, z up, the plant base at ``--base-z``.
+be in the turntable frame, metres, z up, the plant base at ``--base-z``. When plantsim's
+sidecar is beside it (``CLOUD.json``, from ``plantsim scan``), the leaf widths are
+checked against the sensor's range noise along each point's beam (the rig's LiDAR pose
+and each point's turntable angle and intensity); the output says what they were checked
+against, or why not.
 """
 
 from __future__ import annotations
@@ -26,11 +30,40 @@ def add_traits_command(sub) -> None:
     p.set_defaults(func=cmd_traits)
 
 
-def traits_dict(points_turntable, *, base_z: float = 0.0) -> dict:
+def traits_dict(points_turntable, *, base_z: float = 0.0, range_noise_m=None) -> dict:
     """The traits JSON object of a cloud (NaN becomes None)."""
     from plantsim.evaluation.traits import TraitSettings, extract_traits
 
-    return extract_traits(points_turntable, settings=TraitSettings(base_z=base_z)).to_dict()
+    return extract_traits(points_turntable, settings=TraitSettings(base_z=base_z),
+                          range_noise_m=range_noise_m).to_dict()
+
+
+def range_noise_from_sidecar(cloud_path: Path, n_points_in_file: int, cloud):
+    """The range noise vectors of ``cloud``'s points (a selection of the file's) from the
+    plantsim sidecar beside the cloud file, and what they are; (None, why not) when the
+    sidecar is missing, unreadable, for another cloud, or says the noise is not known."""
+    from plantsim.cloud.export import sidecar_path
+    from plantsim.evaluation.evaluate import range_noise_sigma_m, range_noise_vectors
+    from plantsim.sensor.model import SensorModel
+    from plantsim.sensor.spec import LidarSpec
+
+    side = sidecar_path(cloud_path)
+    if not side.is_file():
+        return None, f"not checked: no plantsim sidecar ({side.name}) beside the cloud says which sensor made it"
+    try:
+        meta = json.loads(side.read_text(encoding="utf-8"))
+        written = meta["counts"]["points_written"]
+        simulated = meta["simulated"]
+        T_base_lidar = meta["frames"]["T_base_lidar"]
+        lidar = LidarSpec(**meta["config"]["lidar"])
+        model = SensorModel(**meta["config"]["sensor_model"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return None, f"not checked: {side.name} does not give the scan's sensor and rig ({type(exc).__name__}: {exc})"
+    if written != n_points_in_file:
+        return None, (f"not checked: the cloud holds {n_points_in_file} points, the scan {side.name} "
+                      f"describes wrote {written}")
+    sigma, why = range_noise_sigma_m(cloud, simulated, lidar, model)
+    return (None if sigma is None else range_noise_vectors(cloud, T_base_lidar, sigma)), why
 
 
 def cmd_traits(args: argparse.Namespace) -> int:
@@ -40,6 +73,7 @@ def cmd_traits(args: argparse.Namespace) -> int:
         print(f"plantsim traits: cloud file not found: {args.cloud}", file=sys.stderr)
         return 2
     cloud = read_cloud(args.cloud)
+    n_in_file = len(cloud.points_turntable)
     if not args.all_points and hasattr(cloud, "plant_only"):
         try:
             plant = cloud.plant_only()
@@ -48,11 +82,13 @@ def cmd_traits(args: argparse.Namespace) -> int:
         except (AttributeError, ValueError):
             pass
     pts = cloud.points_turntable
+    noise, checked = range_noise_from_sidecar(args.cloud, n_in_file, cloud)
     try:
-        out = traits_dict(pts, base_z=args.base_z)
+        out = traits_dict(pts, base_z=args.base_z, range_noise_m=noise)
     except ValueError as exc:
         print(f"plantsim traits: {exc}", file=sys.stderr)
         return 2
+    out["leaf_widths_checked_against"] = checked
     text = json.dumps(out, indent=2)
     if args.output is not None:
         args.output.write_text(text + "\n", encoding="utf-8")
@@ -68,4 +104,5 @@ def cmd_traits(args: argparse.Namespace) -> int:
               f"leaves {out['leaf_count']}, area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
         for note in out["notes"]:
             print(f"note: {note}")
+        print(f"leaf widths checked against: {checked}")
     return 0

@@ -93,6 +93,8 @@ class Evaluation:
         estimate: the traits extracted from the cloud, or None as for ``traits``.
         truth_path: the exact-traits file used, or None.
         time_s: wall time of the evaluation, seconds.
+        range_noise_source: what the leaf widths were checked against (the range
+            noise, :func:`range_noise_sigma_m`), or why they were not; None when not said.
     """
 
     n_points: int
@@ -101,11 +103,15 @@ class Evaluation:
     estimate: traits.PlantTraits | None
     truth_path: str | None
     time_s: float
+    range_noise_source: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The sidecar's ``evaluation`` object: the metrics' fields at the top level,
         then ``traits`` (``truth``, ``n_stems``/``n_leaves`` as [estimate, truth],
-        ``errors`` keyed by trait) and ``time_s``. JSON-ready (NaN becomes None)."""
+        ``errors`` keyed by trait, the extraction's ``notes``, per found leaf whether
+        its width is resolved against the range noise, ``leaf_widths_resolved``, and
+        what that noise was, ``leaf_widths_checked_against``) and ``time_s``.
+        JSON-ready (NaN becomes None)."""
         out: dict[str, Any] = {"truth": "placed mesh, plant-class points only",
                                "n_points": self.n_points}
         if self.metrics is not None:
@@ -120,8 +126,80 @@ class Evaluation:
                     "absolute_error": e.absolute_error, "relative_error": e.relative_error,
                     "unit": e.unit}) for e in self.traits.errors},
             }
+            if self.estimate is not None:
+                out["traits"]["notes"] = list(self.estimate.notes)
+                out["traits"]["leaf_widths_resolved"] = [lf.width_resolved for lf in self.estimate.leaves]
+            if self.range_noise_source is not None:
+                out["traits"]["leaf_widths_checked_against"] = self.range_noise_source
         out["time_s"] = self.time_s
         return out
+
+
+def range_noise_sigma_m(cloud: Any, simulated: Mapping[str, Any], lidar: Any, model: Any = None
+                        ) -> tuple[np.ndarray | None, str]:
+    """Per point of a cloud, the least standard deviation its range noise had, from what
+    the scan simulated: what the traits check leaf widths against.
+
+    Args:
+        cloud: the :class:`plantsim.cloud.reconstruct.PointCloud` (its ``range_m`` and
+            ``intensity``).
+        simulated: what the scan's parts did (``ScanResult.parts``; the sidecar's
+            ``simulated``).
+        lidar: the :class:`plantsim.sensor.spec.LidarSpec` of the scan.
+        model: its :class:`plantsim.sensor.model.SensorModel` (None for a real sensor).
+
+    Returns:
+        ((n,) float64 metres, or None when not known; what it is), e.g. "the
+        urg-04lx-ug01's range noise (received-power law, at least 10 mm), read back
+        from each point's intensity". A simulated sensor's is read back from each
+        point's intensity (:func:`plantsim.sensor.model.range_sigma_at_least`); a real
+        sensor's, which gives no intensity, is its preset's at a white target head-on:
+        a lower bound, so a width it flags is unresolved for certain.
+    """
+    from plantsim.sensor.model import range_sigma_at_least
+
+    part = simulated.get("lidar") or {}
+    if "range_filter" in simulated:
+        return None, "not checked: the range filter replaced the sensor's noise by an unknown residual"
+    if not part:
+        return None, "not checked: the scan does not say which LiDAR it used"
+    n = len(cloud.range_m)
+    law = f"{lidar.noise_law} law, at least {1e3 * lidar.range_sigma_m:.3g} mm"
+    if part.get("real"):
+        return (range_sigma_at_least(cloud.range_m, lidar),
+                f"the {lidar.name}'s range noise ({law}) at a white target head-on, a lower bound")
+    if part.get("sensor") == "ideal" or model is None or not model.range_noise:
+        why = "ideal sensor" if part.get("sensor") == "ideal" else "realistic sensor with its range noise off"
+        return np.zeros(n), f"{why}: no range noise"
+    if cloud.intensity is None or not model.intensity:
+        return (range_sigma_at_least(cloud.range_m, lidar),
+                f"the {lidar.name}'s range noise ({law}) at a white target head-on (no intensity "
+                "recorded), a lower bound")
+    return (range_sigma_at_least(cloud.range_m, lidar, intensity=cloud.intensity, model=model),
+            f"the {lidar.name}'s range noise ({law}), read back from each point's intensity")
+
+
+def range_noise_vectors(cloud: Any, T_base_lidar: Any, sigma_m: Any) -> np.ndarray:
+    """Per point, its beam's unit direction in the turntable frame times its range noise's
+    standard deviation: the ``range_noise_m`` of
+    :func:`plantsim.evaluation.traits.extract_traits`.
+
+    Args:
+        cloud: the :class:`plantsim.cloud.reconstruct.PointCloud` (its
+            ``points_turntable`` and ``turntable_angle_rad``).
+        T_base_lidar: (4, 4) the rig's LiDAR pose.
+        sigma_m: (n,) or scalar, metres (>= 0): :func:`range_noise_sigma_m`.
+
+    Returns:
+        (n, 3) float64 metres.
+    """
+    from plantsim.cloud.reconstruct import beam_dirs_turntable
+
+    sigma = np.asarray(sigma_m, dtype=np.float64)
+    if not np.all(np.isfinite(sigma) & (sigma >= 0)):
+        raise ValueError("sigma_m must be finite numbers >= 0 metres")
+    dirs = beam_dirs_turntable(cloud.points_turntable, cloud.turntable_angle_rad, T_base_lidar)
+    return (sigma[:, None] if sigma.ndim == 1 else sigma) * dirs
 
 
 def truth_traits_path(source: str | Path) -> Path | None:
@@ -359,7 +437,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
                    options: EvaluationOptions = EvaluationOptions(),
                    truth_path: str | Path | None = None, threads: int | None = None,
                    progress: Callable[[int, int], None] | None = None,
-                   proximity: metrics.MeshProximity | None = None) -> Evaluation:
+                   proximity: metrics.MeshProximity | None = None,
+                   range_noise_m: Any = None, range_noise_source: str | None = None) -> Evaluation:
     """Measures plant points against the placed mesh and, if known, the exact traits.
 
     Args:
@@ -377,6 +456,11 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
         proximity: a prebuilt :class:`plantsim.evaluation.metrics.MeshProximity`
             of ``plant.vertices_turntable`` / ``plant.faces``, to measure many
             clouds of one plant without rebuilding its tree.
+        range_noise_m: (n, 3) per point, its range noise along its beam
+            (:func:`range_noise_vectors`): the extracted leaf widths are checked
+            against it (``extract_traits``' ``range_noise_m``); None: not checked.
+        range_noise_source: what ``range_noise_m`` is, or why it is None, for the
+            sidecar (:func:`range_noise_sigma_m`'s second value).
 
     Returns:
         Evaluation.
@@ -409,7 +493,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             if with_traits and workers >= 2 else None)
     try:
         estimate_future = (None if pool is None else
-                           pool.submit(traits.extract_traits, pts, settings=options.trait_settings))
+                           pool.submit(traits.extract_traits, pts, settings=options.trait_settings,
+                                       range_noise_m=range_noise_m))
         measured = metrics.cloud_mesh_metrics(
             pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
             band_height=options.band_height, n_surface_samples=options.n_surface_samples,
@@ -429,7 +514,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
                        "%s: %s", found or plant.source, note)
         try:
             reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
-            estimate = (traits.extract_traits(pts, settings=options.trait_settings)
+            estimate = (traits.extract_traits(pts, settings=options.trait_settings,
+                                              range_noise_m=range_noise_m)
                         if estimate_future is None else estimate_future.result())
             comparison = traits.compare_traits(estimate, reference)
         except (ValueError, KeyError, TypeError) as exc:
@@ -441,7 +527,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
     if found is None and labelled is not None:
         found = f"{plant.source} (face labels)"
     return Evaluation(n_points=int(len(pts)), metrics=measured, traits=comparison, estimate=estimate,
-                      truth_path=str(found) if found else None, time_s=time.perf_counter() - t0)
+                      truth_path=str(found) if found else None, time_s=time.perf_counter() - t0,
+                      range_noise_source=range_noise_source if with_traits else None)
 
 
 def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
@@ -464,6 +551,18 @@ def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
     """
     if threads is None:
         threads = getattr(getattr(result, "config", None), "threads", None)
+    noise, source = scan_range_noise(result)
     return evaluate_cloud(result.cloud.plant_only().points_turntable, result.plant,
                           options=options, truth_path=truth_path, threads=threads,
-                          progress=progress, proximity=proximity)
+                          progress=progress, proximity=proximity, range_noise_m=noise,
+                          range_noise_source=source)
+
+
+def scan_range_noise(result) -> tuple[np.ndarray | None, str]:
+    """The range noise vectors of a scan's plant points (:func:`range_noise_vectors` of
+    :func:`range_noise_sigma_m`) and what they are, or (None, why not): what
+    :func:`evaluate_scan` checks the leaf widths against; pass them to
+    ``extract_traits(result.cloud.plant_only().points_turntable, range_noise_m=...)``."""
+    cloud = result.cloud.plant_only()
+    sigma, source = range_noise_sigma_m(cloud, result.parts, result.config.lidar, result.config.sensor_model)
+    return (None if sigma is None else range_noise_vectors(cloud, result.raw.T_base_lidar, sigma)), source

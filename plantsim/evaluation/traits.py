@@ -9,33 +9,28 @@ Clouds are in the turntable frame: z up along the turntable axis, the plant base
 ``z = base_z`` (0 by default) near the origin. Every method below is a deliberate,
 simple estimator; its limits are stated where it is defined:
 
-- height: ``percentile`` of z minus ``base_z`` (default 100: the maximum, which is
-  what the paper's CloudCompare measurement and the mesh's top vertex mean; use e.g.
-  99.9 on noisy clouds, at the price of a low bias on sparse tops).
-- stems: a horizontal slice near the base is split into connected components in XY
+- height: :func:`extract_traits` reads :func:`robust_height` (the top voxel holding
+  enough points that one stray point cannot set it); :func:`plant_height` is the
+  ``percentile`` of z minus ``base_z`` (default 100: the maximum, which is what the
+  paper's CloudCompare measurement and the mesh's top vertex mean).
+- stems: :func:`extract_traits` takes them from the segmentation (columns persisting
+  base-up, :func:`plantsim.evaluation.segmentation.find_stems`). :func:`estimate_stems`,
+  the one-slice building block: a horizontal slice near the base is split into connected components in XY
   (radius graph on voxel centroids, cKDTree), and each component gets a circle fit
   (Kasa algebraic, then geometric least squares with one 3-sigma outlier rejection).
   Stems closer than ``stem_link_distance`` merge; leaves inside the slice bias the
   fit; components whose circle is implausible (wider than ``stem_max_diameter`` or
   a too-short arc) are dropped and logged. The diameter depends on the slice
   height (stems taper; the maize mesh reads 15.1 mm at 2 cm, the paper 12.5 mm).
-- leaves: stems are followed upward slice by slice (re-centred on a fit only while
-  the fit still looks like the stem) and a vertical cylinder of radius
-  ``r + stem_removal_margin`` around each is removed; the rest is split into
-  connected components in 3D. Leaves that touch each other, wrap the stem wider
-  than the margin (maize sheaths), or stay within the margin of a stem, merge or
-  vanish; each leaf also loses ``stem_removal_margin`` at its base. On the seed-rig
-  maize and wheat meshes the largest components are several leaves joined through
-  sheaths: treat leaf traits there as upper bounds until leaves are segmented
-  better. Per leaf, the two ends are the ends of the graph's geodesic diameter
-  (double sweep of Dijkstra on voxel centroids); points are binned by geodesic
-  distance from one end; bins within about one leaf width of either end (arcs
-  rather than cross-sections) are left out of the midrib; length is the polyline
-  through the remaining bin centroids plus the leaf's extent beyond the first and
-  last of them; width is the largest, over those bins, extent of the bin's points
-  across the local midrib direction (range along the main axis of the points
-  projected on the plane normal to it). On flat and curled strips both come within
-  2 %; folded leaves read narrow; noise widens the width by about its spread.
+- leaves (:func:`extract_traits`): organs from
+  :func:`plantsim.evaluation.segmentation.segment_organs` (a level-set skeleton from
+  the stems found base-up); per leaf, length along the midrib, width across it, area
+  as the ribbon between its margins and inclination (:func:`_leaf_measures`). Noise
+  widens a width by about its spread across the leaf: given each point's range noise
+  along its beam, each width is checked against the width that noise alone reads
+  (:func:`leaf_noise_width`, ``Leaf.width_resolved``). :func:`leaf_length_width` measures
+  one leaf's points alone (geodesic double sweep, bins along the geodesic distance, the
+  widest bin across the local direction): on flat and curled strips both within 2 %.
 - convex-hull volume: scipy ``ConvexHull`` of all points above the base.
 - projected area (XY): occupied cells of a square grid times the cell area. It reads
   high by about half a cell along every outline and low where the cloud is sparser
@@ -62,7 +57,7 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
     "TraitSettings", "compare_traits", "connected_components", "convex_hull_volume",
-    "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width", "plant_height",
+    "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width", "leaf_noise_width", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
     "traits_from_mesh", "traits_from_truth",
 ]
@@ -200,6 +195,14 @@ class Leaf:
         length_m: along the midrib.
         width_m: largest width across the midrib.
         n_points: points of the cloud component (0 for truth).
+        area_m2: one-sided area.
+        inclination_deg: the junction-to-tip chord's angle above the horizontal.
+        noise_width_m: the width the sensor's range noise alone reads across the leaf
+            (the 2nd-98th percentile extent of its along-beam noise projected across
+            the midrib; NaN when the noise was not given).
+        width_resolved: False when ``noise_width_m`` is at least half of ``width_m``:
+            the width, and the area built from it, read the noise's spread (a strip
+            read that wide reads 22 % or more wide); None when not checked.
     """
 
     index: int
@@ -208,6 +211,8 @@ class Leaf:
     n_points: int = 0
     area_m2: float = _NAN
     inclination_deg: float = _NAN
+    noise_width_m: float = _NAN
+    width_resolved: bool | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -710,9 +715,49 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
     return float(top - base_z)
 
 
-def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None = None
-                   ) -> tuple[float, float, float, float]:
-    """Length, width, area and inclination of one segmented leaf.
+# The 2nd-98th percentile extent of a normal distribution, in standard deviations
+# (2 x Phi^-1(0.98)): what a leaf width (node_frames) reads from noise alone.
+_NOISE_EXTENT_SIGMAS = 2.0 * 2.053748910631823
+# A leaf's width is resolved while the noise's own extent across it is under this share
+# of the width read. A uniform strip of width w under Gaussian noise sigma reads, as a
+# 2nd-98th percentile extent, 1.10 w at sigma = 0.1 w (noise extent 37 % of the read
+# width), 1.22 w at 0.15 w (50 %), 1.36 w at 0.2 w (60 %): at half, the width reads
+# about 22 % wide, the issue's tolerance for leaf traits (20 %).
+_RESOLVED_NOISE_SHARE = 0.5
+
+
+def leaf_noise_width(points: np.ndarray, noise_m: np.ndarray, node: np.ndarray, tangent: np.ndarray,
+                     normal: np.ndarray, nodes: np.ndarray) -> float:
+    """The width the range noise alone reads across a leaf: the median over ``nodes``
+    of ``4.11 sqrt(mean((v_i . u)^2))``, ``v_i`` each point's noise vector (its beam's
+    unit direction times the noise's standard deviation) and ``u`` the node's direction
+    across the midrib in the leaf's plane (``normal x tangent``); NaN with no node of 3
+    points and a normal.
+
+    Noise along a beam that crosses a leaf at a slant moves the point within the leaf's
+    plane, and the width reads it; along the leaf's normal it does not.
+
+    Args:
+        points: (m, 3) float64 metres, the leaf's points.
+        noise_m: (m, 3) float64 metres, each point's noise vector.
+        node: (m,) int, each point's midrib node.
+        tangent, normal: (k, 3) per node (:func:`plantsim.evaluation.segmentation.node_frames`).
+        nodes: the node indices the width is read over.
+    """
+    extents = []
+    for j in nodes:
+        member = node == j
+        if member.sum() < 3 or not np.all(np.isfinite(normal[j])):
+            continue
+        across = np.cross(normal[j], tangent[j])
+        across /= max(float(np.linalg.norm(across)), 1e-12)
+        extents.append(_NOISE_EXTENT_SIGMAS * math.sqrt(float(np.mean((noise_m[member] @ across) ** 2))))
+    return float(np.median(extents)) if extents else _NAN
+
+
+def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None = None,
+                   noise_m: np.ndarray | None = None) -> tuple[float, float, float, float, float]:
+    """Length, width, area, inclination and noise width of one segmented leaf.
 
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
     reach beyond its last centroid. Width: per midrib node, the robust extent
@@ -726,15 +771,18 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     length-width area models of Montgomery 1911, here with the measured width
     profile); it fills holes inside a cross-section that occlusion leaves.
     Inclination: angle of the junction-to-tip chord above the horizontal, degrees.
+    Noise width: :func:`leaf_noise_width` over the nodes the width is read over, given
+    ``noise_m`` ((m, 3) per point: its beam's unit direction times the range noise's
+    standard deviation); NaN without it.
     """
     if len(midrib) < 2 or len(points) < 3:
-        return _NAN, _NAN, _NAN, _NAN
+        return _NAN, _NAN, _NAN, _NAN, _NAN
     from plantsim.evaluation.segmentation import node_frames
 
     seg = np.diff(midrib, axis=0)
     seg_len = np.linalg.norm(seg, axis=1)
     # Per node its width; each point to its nearest midrib node.
-    _, _, widths, node = node_frames(points, midrib, link=link)
+    tangent, normal, widths, node = node_frames(points, midrib, link=link)
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     beyond = float(max(0.0, ((points[node == len(midrib) - 1] - midrib[-1]) @ tip_dir).max()))
     length = float(seg_len.sum() + beyond)
@@ -747,16 +795,23 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     # fifth of the midrib is left out: there the sheath wraps the stem and the
     # stem's off-axis points join the leaf (segmentation._release_leaf_bases).
     along = np.r_[0.0, np.cumsum(seg_len)]
-    outer = widths[along >= 0.2 * along[-1]]
-    outer = outer if len(outer) else widths[1:]
-    return length, float(np.percentile(outer, 90)), area, incl
+    outer_nodes = np.flatnonzero(along >= 0.2 * along[-1])
+    outer_nodes = outer_nodes if len(outer_nodes) else np.arange(1, len(widths))
+    noise_width = (_NAN if noise_m is None else
+                   leaf_noise_width(points, noise_m, node, tangent, normal, outer_nodes))
+    return length, float(np.percentile(widths[outer_nodes], 90)), area, incl, noise_width
+
+
+def _above_mask(pts: np.ndarray, s: TraitSettings) -> np.ndarray:
+    """The points traits read: those at or above ``base_z + ground_clearance``."""
+    return pts[:, 2] >= s.base_z + s.ground_clearance
 
 
 def _segment_above(pts: np.ndarray, s: TraitSettings) -> tuple[np.ndarray, "segmentation.Segmentation"]:
     """The points above the ground clearance and their segmentation, as traits read them."""
     from plantsim.evaluation import segmentation
 
-    above = pts[pts[:, 2] >= s.base_z + s.ground_clearance]
+    above = pts[_above_mask(pts, s)]
     if len(above) < 17:
         raise ValueError(f"points_turntable holds {len(above)} points above the ground clearance; "
                          "traits need at least 17")
@@ -781,7 +836,8 @@ def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None 
     return _segment_above(_as_cloud(points_turntable), settings or TraitSettings())[1]
 
 
-def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None) -> PlantTraits:
+def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None,
+                   range_noise_m: Any = None) -> PlantTraits:
     """Extract every trait from a cloud, without the mesh.
 
     Organs come from :func:`plantsim.evaluation.segmentation.segment_organs`
@@ -805,6 +861,13 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       With no branch long enough to be a leaf: count 0, area, length and width
       NaN (not measured, never 0) and a note naming the length a branch needed
       (``Segmentation.min_leaf_length_m``).
+    - with ``range_noise_m``, each leaf's width is checked against the width the
+      sensor's range noise alone reads across it (``Leaf.noise_width_m``,
+      :func:`leaf_noise_width`): at half the width or more, ``Leaf.width_resolved``
+      is False and a note gives the leaves and the share of the leaf area they hold.
+      A URG-04LX (10 mm noise floor along the beam) reads 9 mm wheat leaves 40-46 mm
+      wide: the plane-fit noise the cloud itself shows (3-6 mm, across the surfaces)
+      cannot see noise that lies in a leaf's plane; the beams' directions can.
     - convex hull volume (Qhull) and projected XY area (occupancy grid, cell
       ``max(grid_cell, 2 voxels)``) of the points above the ground clearance; a
       flat cloud's volume is NaN, with a note.
@@ -813,12 +876,25 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         points_turntable: (n, 3) float64, metres, turntable frame, base at
             ``settings.base_z``.
         settings: extraction settings (defaults if None).
+        range_noise_m: optional (n, 3) float64 metres, per point of
+            ``points_turntable``: its beam's unit direction in the turntable frame
+            times the range noise's standard deviation there (at least the sensor's
+            floor: :func:`plantsim.evaluation.evaluate.range_noise_vectors`); zeros for a
+            noiseless sensor. None: the widths are not checked (``width_resolved`` None).
 
     Returns:
         PlantTraits; NaN where a trait could not be measured, with notes saying why.
     """
     s = settings or TraitSettings()
-    above, seg = _segment_above(_as_cloud(points_turntable), s)
+    pts = _as_cloud(points_turntable)
+    noise = None
+    if range_noise_m is not None:
+        noise = np.asarray(range_noise_m, dtype=np.float64)
+        if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
+            raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
+                             f"got {noise.shape}")
+    above, seg = _segment_above(pts, s)
+    noise_seg = None if noise is None else noise[_above_mask(pts, s)][seg.kept]
     notes: list[str] = []
     height = robust_height(above, base_z=s.base_z, kept=seg.kept, scale=seg.scale)
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
@@ -836,10 +912,26 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     pairs, mean_pair, mean_nn = stem_distances(stems)
     leaves: list[Leaf] = []
     for i, midrib in enumerate(seg.leaf_midribs):
-        lp = seg.points[seg.leaf_label == i]
-        length, width, area, incl = _leaf_measures(lp, midrib, link=seg.link_m)
+        member = seg.leaf_label == i
+        lp = seg.points[member]
+        length, width, area, incl, noise_width = _leaf_measures(
+            lp, midrib, link=seg.link_m, noise_m=None if noise_seg is None else noise_seg[member])
+        resolved = (None if noise_seg is None or math.isnan(noise_width) or math.isnan(width)
+                    else bool(noise_width < _RESOLVED_NOISE_SHARE * width))
         leaves.append(Leaf(index=i, length_m=length, width_m=width, n_points=int(len(lp)),
-                           area_m2=area, inclination_deg=incl))
+                           area_m2=area, inclination_deg=incl, noise_width_m=noise_width,
+                           width_resolved=resolved))
+    unresolved = [lf for lf in leaves if lf.width_resolved is False]
+    if unresolved:
+        share = sum(lf.area_m2 for lf in unresolved) / max(sum(lf.area_m2 for lf in leaves), 1e-300)
+        notes.append(f"leaf widths not resolved: the range noise alone reads "
+                     f"{1e3 * min(lf.noise_width_m for lf in unresolved):.0f}-"
+                     f"{1e3 * max(lf.noise_width_m for lf in unresolved):.0f} mm across "
+                     f"{len(unresolved)} of {len(leaves)} leaves, at least half their "
+                     f"{1e3 * min(lf.width_m for lf in unresolved):.0f}-"
+                     f"{1e3 * max(lf.width_m for lf in unresolved):.0f} mm widths: those widths read the "
+                     f"noise's spread (22 % wide or more), and so does their area, {100 * share:.0f} % "
+                     "of the leaf area")
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
     # top; no stem can then read taller than the plant.

@@ -1,0 +1,159 @@
+"""Leaf widths checked against the sensor's range noise, from a scan's own record.
+
+The geometry (each point's beam direction from the rig and its turntable angle) against
+hand-computed transforms and the reconstruction itself; which noise a scan had, from
+what its parts simulated; and end to end, ``plantsim traits`` on a scan's cloud with
+and without its sidecar, and ``evaluate_scan``'s sidecar object.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import shutil
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from plantsim.cloud.reconstruct import base_to_turntable, beam_dirs_turntable
+from plantsim.evaluation import evaluate
+from plantsim.evaluation.evaluate import range_noise_sigma_m, range_noise_vectors, scan_range_noise
+from plantsim.evaluation.traits import extract_traits
+from plantsim.plant.mesh import plant_from_arrays
+from plantsim.plant.procedural import make_maize, to_labelled_obj_bytes, traits_to_json
+from plantsim.scan.config import RangeFilter, RunConfig
+from plantsim.scan.pipeline import run_scan
+from plantsim.scan.schedule import StepScan
+from plantsim.sensor.model import SensorModel, range_sigma_at_least
+from plantsim.sensor.spec import URG_04LX_UG01
+
+
+def test_beam_directions_by_hand_and_back_to_the_lidar_along_the_range():
+    T_base_lidar = np.eye(4)
+    T_base_lidar[:3, 3] = (0.35, 0.0, 0.15)
+    pts = np.array([[0.0, 0.0, 0.15], [0.0, 0.0, 0.15], [0.05, 0.0, 0.55]])
+    dirs = beam_dirs_turntable(pts, np.radians([90.0, 0.0, 0.0]), T_base_lidar)
+    # Turned 90 deg counter-clockwise, the LiDAR stands at (0, -0.35) in the turntable
+    # frame; unturned at (0.35, 0): the third point is 0.3 m in and 0.4 m up from it.
+    np.testing.assert_allclose(dirs, [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [-0.6, 0.0, 0.8]], atol=1e-15)
+    with pytest.raises(ValueError, match="2 angles for 3 points"):
+        beam_dirs_turntable(pts, np.zeros(2), T_base_lidar)
+
+
+@functools.lru_cache(maxsize=None)
+def _plant():
+    return make_maize(seed=2, n_leaves=4)
+
+
+@functools.lru_cache(maxsize=None)
+def _scan(ideal: bool = False, range_filter: bool = False):
+    plant = _plant()
+    config = RunConfig(ideal=ideal, scan=StepScan(step_deg=2.0))
+    if range_filter:
+        config = config.replace(range_filter=RangeFilter(enabled=True))
+    return run_scan(config, plant=plant_from_arrays(plant.vertices_m, plant.faces))
+
+
+def test_a_scans_points_go_back_along_their_beams_to_the_lidar_by_their_range():
+    result = _scan()
+    cloud = result.cloud.plant_only()
+    dirs = beam_dirs_turntable(cloud.points_turntable, cloud.turntable_angle_rad, result.raw.T_base_lidar)
+    origin = base_to_turntable(np.broadcast_to(result.raw.T_base_lidar[:3, 3], dirs.shape),
+                               cloud.turntable_angle_rad)
+    np.testing.assert_allclose(cloud.points_turntable - cloud.range_m[:, None] * dirs, origin, atol=1e-12)
+
+
+def test_which_noise_a_scan_had_follows_what_its_parts_simulated():
+    lidar, model = URG_04LX_UG01, SensorModel()
+    r = np.array([0.2, 0.35, 0.5])
+    intensity = np.array([0.02, 0.01, 1.0])
+    cloud = SimpleNamespace(range_m=r, intensity=intensity)
+    realistic = {"lidar": {"kind": "simulated", "model": lidar.name, "sensor": "realistic",
+                           "effects": {"range_noise": True}}}
+    sigma, why = range_noise_sigma_m(cloud, realistic, lidar, model)
+    np.testing.assert_array_equal(sigma, range_sigma_at_least(r, lidar, intensity=intensity, model=model))
+    assert "read back from each point's intensity" in why
+    # No intensity recorded, or a real sensor (none given): a white target head-on.
+    for parts, c in ((realistic, SimpleNamespace(range_m=r, intensity=None)),
+                     ({"lidar": {"kind": "urg", "real": True, "preset": lidar.name}}, cloud)):
+        sigma, why = range_noise_sigma_m(c, parts, lidar, model)
+        np.testing.assert_array_equal(sigma, range_sigma_at_least(r, lidar))
+        assert "white target head-on" in why and "a lower bound" in why
+    sigma, why = range_noise_sigma_m(cloud, {"lidar": {"sensor": "ideal"}}, lidar, SensorModel.off())
+    assert np.all(sigma == 0) and why == "ideal sensor: no range noise"
+    quiet = {"lidar": {"sensor": "realistic", "effects": {"range_noise": False}}}
+    sigma, why = range_noise_sigma_m(cloud, quiet, lidar, SensorModel(range_noise=False))
+    assert np.all(sigma == 0) and "range noise off" in why
+    assert range_noise_sigma_m(cloud, {**realistic, "range_filter": {}}, lidar, model)[0] is None
+    assert range_noise_sigma_m(cloud, {}, lidar, model)[0] is None
+    with pytest.raises(ValueError, match="sigma_m must be finite numbers >= 0"):
+        range_noise_vectors(SimpleNamespace(points_turntable=np.zeros((1, 3)), turntable_angle_rad=np.zeros(1)),
+                            np.eye(4), np.array([-1.0]))
+
+
+def test_a_realistic_scans_leaf_widths_are_checked_and_an_ideal_scans_all_resolved():
+    noise, why = scan_range_noise(_scan())
+    assert noise is not None and "read back from each point's intensity" in why
+    # At least the URG-04LX's 10 mm floor along every beam.
+    assert np.all(np.linalg.norm(noise, axis=1) >= URG_04LX_UG01.range_sigma_m * (1 - 1e-12))
+    pts = _scan().cloud.plant_only().points_turntable
+    leaves = extract_traits(pts, range_noise_m=noise).leaves
+    assert leaves and all(isinstance(lf.width_resolved, bool) for lf in leaves)
+    assert all(lf.noise_width_m > 0 for lf in leaves)
+    noise, why = scan_range_noise(_scan(ideal=True))
+    assert why == "ideal sensor: no range noise" and not noise.any()
+    leaves = extract_traits(_scan(ideal=True).cloud.plant_only().points_turntable, range_noise_m=noise).leaves
+    assert leaves and all(lf.width_resolved is True and lf.noise_width_m == 0 for lf in leaves)
+    noise, why = scan_range_noise(_scan(range_filter=True))
+    assert noise is None and why.startswith("not checked: the range filter")
+
+
+def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_without_it(tmp_path, capsys):
+    from plantsim.cli.app import main
+
+    plant = _plant()
+    mesh = tmp_path / "maize.obj"
+    mesh.write_bytes(to_labelled_obj_bytes(plant))
+    (tmp_path / "maize.traits.json").write_text(traits_to_json(plant))
+    cloud = tmp_path / "maize.las"
+    assert main(["scan", str(mesh), "-o", str(cloud), "--step-deg", "2", "--no-pictures", "--evaluate"]) == 0
+    # The scan's own evaluation prints what its trait errors do not say.
+    notes = json.loads((tmp_path / "maize.las.json").read_text())["evaluation"]["traits"]["notes"]
+    printed = capsys.readouterr().out
+    assert notes and all(f"traits note: {n}" in printed for n in notes)
+    out = tmp_path / "t.json"
+    assert main(["traits", str(cloud), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert "read back from each point's intensity" in data["leaf_widths_checked_against"]
+    assert data["leaves"] and all(isinstance(lf["width_resolved"], bool) for lf in data["leaves"])
+    assert "leaf widths checked against: the urg-04lx-ug01's range noise" in printed
+    # The same cloud without its sidecar: nothing is claimed, and the output says why.
+    alone = tmp_path / "alone.las"
+    shutil.copyfile(cloud, alone)
+    assert main(["traits", str(alone), "-o", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["leaf_widths_checked_against"].startswith("not checked: no plantsim sidecar (alone.las.json)")
+    assert all(lf["width_resolved"] is None for lf in data["leaves"])
+    # A sidecar of another scan (other point count) is not used.
+    other = tmp_path / "other.las"
+    shutil.copyfile(cloud, other)
+    meta = json.loads((tmp_path / "maize.las.json").read_text())
+    meta["counts"]["points_written"] += 1
+    (tmp_path / "other.las.json").write_text(json.dumps(meta))
+    assert main(["traits", str(other), "-o", str(out)]) == 0
+    assert "the scan other.las.json describes wrote" in json.loads(out.read_text())["leaf_widths_checked_against"]
+
+
+def test_evaluate_scan_writes_the_check_and_the_notes_into_the_sidecar_object(tmp_path):
+    truth = tmp_path / "truth.json"
+    truth.write_text(traits_to_json(_plant()))
+    ev = evaluate.evaluate_scan(_scan(), options=evaluate.EvaluationOptions(n_surface_samples=1000),
+                                truth_path=truth, threads=1)
+    out = ev.to_dict()["traits"]
+    assert "read back from each point's intensity" in out["leaf_widths_checked_against"]
+    assert out["leaf_widths_resolved"] == [lf.width_resolved for lf in ev.estimate.leaves]
+    assert out["notes"] == list(ev.estimate.notes)
+    assert any(n.startswith("stem at") for n in out["notes"])  # the noisy stem's bound is said
+
