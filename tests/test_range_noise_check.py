@@ -144,6 +144,12 @@ def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_withou
     (tmp_path / "other.las.json").write_text(json.dumps(meta))
     assert main(["traits", str(other), "-o", str(out)]) == 0
     assert "the scan other.las.json describes wrote" in json.loads(out.read_text())["leaf_widths_checked_against"]
+    # A format that drops each point's range and angle cannot be checked, sidecar or not.
+    pts = tmp_path / "maize.pts"
+    assert main(["scan", str(mesh), "-o", str(pts), "--step-deg", "2", "--no-pictures"]) == 0
+    assert main(["traits", str(pts), "-o", str(out)]) == 0
+    assert json.loads(out.read_text())["leaf_widths_checked_against"].startswith(
+        "not checked: a .pts cloud does not carry each point's range and turntable angle")
 
 
 def test_evaluate_scan_writes_the_check_and_the_notes_into_the_sidecar_object(tmp_path):

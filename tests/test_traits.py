@@ -630,7 +630,8 @@ def test_a_leaf_widened_by_noise_in_its_plane_is_flagged_not_one_with_noise_alon
     assert leaf.noise_width_m == pytest.approx(4.11 * 0.008, rel=0.06)
     assert leaf.width_resolved is False
     (note,) = [n for n in t.notes if n.startswith("leaf widths not resolved")]
-    assert "1 of 1 leaves" in note and "100 % of the leaf area" in note
+    assert f"reads {round(1e3 * leaf.noise_width_m)} mm across 1 of 1 leaves" in note
+    assert "100 % of the leaf area" in note
     assert traits.extract_traits(pts).leaves[0].width_resolved is None
 
     pts, noise = _leaf_under_beam_noise(rng, 0.008, (0.0, 0.0, 1.0))

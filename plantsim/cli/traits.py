@@ -42,11 +42,15 @@ def range_noise_from_sidecar(cloud_path: Path, n_points_in_file: int, cloud):
     """The range noise vectors of ``cloud``'s points (a selection of the file's) from the
     plantsim sidecar beside the cloud file, and what they are; (None, why not) when the
     sidecar is missing, unreadable, for another cloud, or says the noise is not known."""
-    from plantsim.cloud.export import sidecar_path
+    from plantsim.cloud.export import INDEXED_FORMATS, LOSSY_FORMATS, sidecar_path
     from plantsim.evaluation.evaluate import range_noise_sigma_m, range_noise_vectors
     from plantsim.sensor.model import SensorModel
     from plantsim.sensor.spec import LidarSpec
 
+    suffix = cloud_path.suffix.lower()
+    if suffix in LOSSY_FORMATS | INDEXED_FORMATS:
+        return None, (f"not checked: a {suffix} cloud does not carry each point's range and turntable "
+                      "angle (a .las, .ply or .pcd from plantsim scan does)")
     side = sidecar_path(cloud_path)
     if not side.is_file():
         return None, f"not checked: no plantsim sidecar ({side.name}) beside the cloud says which sensor made it"

@@ -726,8 +726,8 @@ _NOISE_EXTENT_SIGMAS = 2.0 * 2.053748910631823
 _RESOLVED_NOISE_SHARE = 0.5
 
 
-def leaf_noise_width(points: np.ndarray, noise_m: np.ndarray, node: np.ndarray, tangent: np.ndarray,
-                     normal: np.ndarray, nodes: np.ndarray) -> float:
+def leaf_noise_width(noise_m: np.ndarray, node: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
+                     nodes: np.ndarray) -> float:
     """The width the range noise alone reads across a leaf: the median over ``nodes``
     of ``4.11 sqrt(mean((v_i . u)^2))``, ``v_i`` each point's noise vector (its beam's
     unit direction times the noise's standard deviation) and ``u`` the node's direction
@@ -738,8 +738,7 @@ def leaf_noise_width(points: np.ndarray, noise_m: np.ndarray, node: np.ndarray, 
     plane, and the width reads it; along the leaf's normal it does not.
 
     Args:
-        points: (m, 3) float64 metres, the leaf's points.
-        noise_m: (m, 3) float64 metres, each point's noise vector.
+        noise_m: (m, 3) float64 metres, each of the leaf's points' noise vector.
         node: (m,) int, each point's midrib node.
         tangent, normal: (k, 3) per node (:func:`plantsim.evaluation.segmentation.node_frames`).
         nodes: the node indices the width is read over.
@@ -798,7 +797,7 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     outer_nodes = np.flatnonzero(along >= 0.2 * along[-1])
     outer_nodes = outer_nodes if len(outer_nodes) else np.arange(1, len(widths))
     noise_width = (_NAN if noise_m is None else
-                   leaf_noise_width(points, noise_m, node, tangent, normal, outer_nodes))
+                   leaf_noise_width(noise_m, node, tangent, normal, outer_nodes))
     return length, float(np.percentile(widths[outer_nodes], 90)), area, incl, noise_width
 
 
@@ -924,12 +923,14 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     unresolved = [lf for lf in leaves if lf.width_resolved is False]
     if unresolved:
         share = sum(lf.area_m2 for lf in unresolved) / max(sum(lf.area_m2 for lf in leaves), 1e-300)
+        def mm(values):
+            lo, hi = round(1e3 * min(values)), round(1e3 * max(values))
+            return f"{lo}" if lo == hi else f"{lo}-{hi}"
+
         notes.append(f"leaf widths not resolved: the range noise alone reads "
-                     f"{1e3 * min(lf.noise_width_m for lf in unresolved):.0f}-"
-                     f"{1e3 * max(lf.noise_width_m for lf in unresolved):.0f} mm across "
+                     f"{mm([lf.noise_width_m for lf in unresolved])} mm across "
                      f"{len(unresolved)} of {len(leaves)} leaves, at least half their "
-                     f"{1e3 * min(lf.width_m for lf in unresolved):.0f}-"
-                     f"{1e3 * max(lf.width_m for lf in unresolved):.0f} mm widths: those widths read the "
+                     f"{mm([lf.width_m for lf in unresolved])} mm widths: those widths read the "
                      f"noise's spread (22 % wide or more), and so does their area, {100 * share:.0f} % "
                      "of the leaf area")
     # Each stem's top by the plant height's own rule (robust_height on its points): the
