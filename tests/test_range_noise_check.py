@@ -87,6 +87,8 @@ def test_which_noise_a_scan_had_follows_what_its_parts_simulated():
     assert np.all(sigma == 0) and "range noise off" in why
     assert range_noise_sigma_m(cloud, {**realistic, "range_filter": {}}, lidar, model)[0] is None
     assert range_noise_sigma_m(cloud, {}, lidar, model)[0] is None
+    assert range_noise_sigma_m(cloud, realistic, lidar, None) == (
+        None, "not checked: the scan does not give its sensor model")
     with pytest.raises(ValueError, match="sigma_m must be finite numbers >= 0"):
         range_noise_vectors(SimpleNamespace(points_turntable=np.zeros((1, 3)), turntable_angle_rad=np.zeros(1)),
                             np.eye(4), np.array([-1.0]))

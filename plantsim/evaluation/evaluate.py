@@ -168,9 +168,12 @@ def range_noise_sigma_m(cloud: Any, simulated: Mapping[str, Any], lidar: Any, mo
     if part.get("real"):
         return (range_sigma_at_least(cloud.range_m, lidar),
                 f"the {lidar.name}'s range noise ({law}) at a white target head-on, a lower bound")
-    if part.get("sensor") == "ideal" or model is None or not model.range_noise:
-        why = "ideal sensor" if part.get("sensor") == "ideal" else "realistic sensor with its range noise off"
-        return np.zeros(n), f"{why}: no range noise"
+    if part.get("sensor") == "ideal":
+        return np.zeros(n), "ideal sensor: no range noise"
+    if model is None:
+        return None, "not checked: the scan does not give its sensor model"
+    if not model.range_noise:
+        return np.zeros(n), "realistic sensor with its range noise off: no range noise"
     if cloud.intensity is None or not model.intensity:
         return (range_sigma_at_least(cloud.range_m, lidar),
                 f"the {lidar.name}'s range noise ({law}) at a white target head-on (no intensity "
