@@ -121,10 +121,14 @@ def test_a_leaf_crossing_above_another_does_not_widen_it_but_a_hidden_band_still
     band no view saw."""
     g = np.arange(0.0, 0.1, 0.001)
     midrib = np.column_stack([np.arange(0.0, 0.11, 0.01), np.zeros(11), np.zeros(11)])
+    rng = np.random.default_rng(0)
 
     def strip(y_lo, y_hi):
-        x, y = np.meshgrid(g, np.arange(y_lo, y_hi + 1e-9, 0.001))
-        return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+        # About one point per mm across each x row, at independent positions (as scan
+        # lines crossing a leaf at different offsets give; the width is read as a
+        # uniform strip's, segmentation.uniform_width).
+        x = np.repeat(g, round((y_hi - y_lo) / 0.001) + 1)
+        return np.column_stack([x, rng.uniform(y_lo, y_hi, x.size), np.zeros(x.size)])
 
     leaf = strip(-0.005, 0.005)  # 10 mm wide, in the z = 0 plane, midrib on the x axis
     # Another leaf crossing above it near x = 50 mm: from 12 mm up, 5 mm off its edge,
@@ -139,10 +143,12 @@ def test_a_leaf_crossing_above_another_does_not_widen_it_but_a_hidden_band_still
     assert wide[5] > 0.015  # without the link the crossing leaf widens that node
     np.testing.assert_allclose(cut[1:-1], 0.01, atol=0.0005)
 
-    # The same leaf 30 mm wide with a 14 mm band along its middle unseen: still 30 mm.
+    # The same leaf 30 mm wide with a 14 mm band along its middle unseen: still 30 mm,
+    # read up to 5 % wide (its points fill 16 mm of it, so the 2nd and 98th percentiles
+    # lie nearer its margins than a whole strip's, for which uniform_width is unbiased).
     halves = np.vstack([strip(-0.015, -0.007), strip(0.007, 0.015)])
     _, _, band, _ = segmentation.node_frames(halves, midrib + [0, -0.011, 0], link=0.004)
-    np.testing.assert_allclose(band[1:-1], 0.03, atol=0.001)
+    assert np.all((band[1:-1] >= 0.0295) & (band[1:-1] <= 0.0315)), band
 
 
 def test_scale_follows_the_spacing():

@@ -221,9 +221,13 @@ def test_a_lone_scan_line_beside_a_leaf_is_not_a_leaf(seed, gap):
     line = np.column_stack([x, y, np.full_like(x, 0.10)])
     t = traits.extract_traits(np.vstack([stem, leaf_a, leaf_b, line]))
     assert t.leaf_count == 2
-    for length, area in zip(t.leaf_lengths_m, t.leaf_areas_m2):
+    for length in t.leaf_lengths_m:
         assert length == pytest.approx(0.125, rel=0.10)
-        assert area == pytest.approx(0.12 * 0.03, rel=0.15)
+    # The line joins leaf a's cross-sections and widens them (its width reads 35-43 mm
+    # for 30): that leaf's area reads up to 16 % large; the other leaf's is its own.
+    clean, joined = sorted(t.leaf_areas_m2)
+    assert clean == pytest.approx(0.12 * 0.03, rel=0.06)
+    assert joined == pytest.approx(0.12 * 0.03, rel=0.20)
 
 
 def _flared_stem(rng, r, r_base, flare_height, height, n):
@@ -579,7 +583,9 @@ def test_traits_from_mesh_of_a_stem_with_a_flat_leaf():
     assert len(t.stems) == 1 and len(t.leaves) == 1
     # Measured from the stem's skeleton: the blade's 0.25 m plus part of the stem radius.
     assert t.leaf_length_m == pytest.approx(0.25, rel=0.03)
-    assert t.leaf_width_m == pytest.approx(0.02, rel=0.02)
+    # The box's 1 mm sides put 5 % of the samples on its margins, where a uniformly
+    # sampled strip (the width's model: segmentation.uniform_width) has none: 4 % wide.
+    assert t.leaf_width_m == pytest.approx(0.02, rel=0.05)
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -657,3 +663,20 @@ def test_a_noiseless_sensor_resolves_every_width_and_bad_noise_vectors_are_refus
     bad[0, 0] = np.nan
     with pytest.raises(ValueError, match=r"range_noise_m must be finite"):
         traits.extract_traits(pts, range_noise_m=bad)
+
+
+@pytest.mark.parametrize("n", [3, 5, 20, 300])
+def test_uniform_width_reads_a_uniformly_sampled_strip_unbiased(n):
+    # The 2nd-98th percentile extent of n uniform samples averages 0.96 w (n - 1) / (n + 1)
+    # (0.48 w for 3 points, 0.95 w for 300); uniform_width divides that out.
+    from plantsim.evaluation.segmentation import uniform_width
+
+    rng = np.random.default_rng(n)
+    width_m = 0.03
+    u = rng.uniform(-0.5 * width_m, 0.5 * width_m, size=(4000, n))
+    reads = np.array([uniform_width(row) for row in u])
+    extents = np.percentile(u, 98, axis=1) - np.percentile(u, 2, axis=1)
+    assert extents.mean() == pytest.approx(0.96 * width_m * (n - 1) / (n + 1), rel=0.01)
+    assert reads.mean() == pytest.approx(width_m, rel=0.01)
+    with pytest.raises(ValueError, match="at least 2 points"):
+        uniform_width(u[0, :1])

@@ -11,11 +11,11 @@ Asserted: every target the current segmentation meets (``scripts/traits_accuracy
 prints the whole table). Targets not met yet are strict ``xfail``s, so a fix that
 reaches one turns the test red until it is promoted to a plain assertion:
 ideal rosette leaf area
-(-38 % / -62 %: most of it hidden from the default rig) and 30-leaf count (15: its inner
+(-34 % / -60 %: most of it hidden from the default rig) and 30-leaf count (15: its inner
 leaves, a cup, stay merged); realistic
-wheat area (+227 %: one stem of four found, its 4 mm hidden in a noisy column 5 cm wide,
+wheat area (+245 %: one stem of four found, its 4 mm hidden in a noisy column 5 cm wide,
 the other tillers read as wide leaves) and realistic rosettes (one leaf each, area
--62 % / -80 %, the 12-leaf height +5.3 %); the dicot's realistic leaf count (13 for 24:
+-60 % / -79 %, the 12-leaf height +5.3 %); the dicot's realistic leaf count (13 for 24:
 the leaflets of a leaf merge).
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
 
@@ -130,6 +130,15 @@ def test_stems_found_from_the_base_up_with_their_diameter():
         (stem,) = est.stems
         assert np.hypot(*stem.center_xy_m) < 0.002, name
         assert _rel(stem.diameter_m, truth["stem_diameter_m"]) <= 0.10, name
+
+
+@pytest.mark.parametrize("name", ["maize", "wheat"])
+def test_the_widest_leaf_from_an_ideal_scan_within_three_percent(name):
+    # A cross-section's 2nd-98th percentile extent read the leaves 6 % narrow (48.2 mm
+    # for 51.1 on the maize, 9.9 for 10.5 on the wheat) and their areas 11-12 % small;
+    # read as a uniformly sampled strip's width (segmentation.uniform_width), 50.5 and 10.5.
+    est, truth = _scan(name, *IDEAL)
+    assert _rel(est.leaf_width_m, truth["leaf_width_m"]) <= 0.03
 
 
 def test_stem_height_from_an_ideal_scan_within_five_percent():

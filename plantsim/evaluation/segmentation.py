@@ -87,7 +87,8 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "CloudScale", "Segmentation", "SegmentationSettings", "StemBase", "estimate_scale",
-    "find_stems", "kept_points", "node_frames", "outlier_mask", "segment_organs", "voxel_centroids",
+    "find_stems", "kept_points", "node_frames", "outlier_mask", "segment_organs", "uniform_width",
+    "voxel_centroids",
 ]
 
 
@@ -821,14 +822,38 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
     return stem_label, leaf_label
 
 
+def uniform_width(u: np.ndarray) -> float:
+    """The width of a strip whose points ``u`` (offsets across it, n >= 2) sample it
+    uniformly, from their 2nd-98th percentile extent.
+
+    The extent is robust to a stray point but reads short: the k-th of n uniform
+    samples on a width ``w`` lies at ``k w / (n + 1)`` on average (order statistics,
+    e.g. David & Nagaraja 2003, "Order Statistics", 3rd ed., Wiley, section 3.1),
+    and numpy's linearly interpolated percentiles are linear in the order
+    statistics, so ``E[P98 - P2] = 0.96 w (n - 1) / (n + 1)``: 0.87 w for 20
+    points, 0.95 w for 300 (checked by simulation in
+    ``tests/test_traits.py``). The width returned is the extent divided by that
+    factor: unbiased for a uniform strip. Noise across the strip widens it further;
+    that is what :func:`plantsim.evaluation.traits.leaf_noise_width` checks.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    n = len(u)
+    if n < 2:
+        raise ValueError(f"a width needs at least 2 points across, got {n}")
+    extent = float(np.percentile(u, 98) - np.percentile(u, 2))
+    return extent * (n + 1) / (0.96 * (n - 1))
+
+
 def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray, *, link: float | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per midrib node: unit tangent, unit normal (NaN with under 3 points) and width;
     and each point's node.
 
     A node's points are those nearest it; their spread across the tangent gives the
-    in-plane axis (largest) and the normal; the width is the 2nd-98th percentile
-    extent along the in-plane axis.
+    in-plane axis (largest) and the normal; the width is read from the 2nd-98th
+    percentile extent along the in-plane axis as the width of a strip sampled
+    uniformly across (:func:`uniform_width`: the extent alone read the ideal maize's and
+    wheat's widest leaves 6 % narrow).
 
     With ``link`` given, a cross-section that falls apart along that axis into runs
     more than ``link`` apart is read as the leaf's own run (the one holding the
@@ -880,7 +905,7 @@ def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray, *, link: float | None 
                             continue  # it lies above or below the leaf
                         keep |= run == r
                     u = q[keep] @ axis  # across the leaf's own run, not tilted by the other leaf
-        width[i] = float(np.percentile(u, 98) - np.percentile(u, 2))
+        width[i] = uniform_width(u)
     return tangent, normal, width, node
 
 

@@ -200,9 +200,9 @@ class Leaf:
         noise_width_m: the width the sensor's range noise alone reads across the leaf
             (the 2nd-98th percentile extent of its along-beam noise projected across
             the midrib; NaN when the noise was not given).
-        width_resolved: False when ``noise_width_m`` is at least half of ``width_m``:
+        width_resolved: False when ``noise_width_m`` is at least 45 % of ``width_m``:
             the width, and the area built from it, read the noise's spread (a strip
-            read that wide reads 22 % or more wide); None when not checked.
+            read that wide reads 23 % or more wide); None when not checked.
     """
 
     index: int
@@ -719,11 +719,13 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
 # (2 x Phi^-1(0.98)): what a leaf width (node_frames) reads from noise alone.
 _NOISE_EXTENT_SIGMAS = 2.0 * 2.053748910631823
 # A leaf's width is resolved while the noise's own extent across it is under this share
-# of the width read. A uniform strip of width w under Gaussian noise sigma reads, as a
-# 2nd-98th percentile extent, 1.10 w at sigma = 0.1 w (noise extent 37 % of the read
-# width), 1.22 w at 0.15 w (50 %), 1.36 w at 0.2 w (60 %): at half, the width reads
-# about 22 % wide, the issue's tolerance for leaf traits (20 %).
-_RESOLVED_NOISE_SHARE = 0.5
+# of the width read. A uniform strip of width w under Gaussian noise sigma reads
+# (segmentation.uniform_width of its 2nd-98th percentile extent, many points; exact
+# percentiles of the uniform-normal convolution) 1.14 w at sigma = 0.1 w (noise extent
+# 36 % of the read width), 1.23 w at 0.135 w (45 %), 1.27 w at 0.15 w (48 %), 1.42 w at
+# 0.2 w (58 %): at 45 %, the width reads about 23 % wide, the issue's tolerance for
+# leaf traits (20 %).
+_RESOLVED_NOISE_SHARE = 0.45
 
 
 def leaf_noise_width(noise_m: np.ndarray, node: np.ndarray, tangent: np.ndarray, normal: np.ndarray,
@@ -759,9 +761,10 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     """Length, width, area, inclination and noise width of one segmented leaf.
 
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
-    reach beyond its last centroid. Width: per midrib node, the robust extent
-    (2nd to 98th percentile) of the node's points across the midrib, along their main
-    in-plane axis, with ``link`` (the skeleton's link) only over the cross-section's runs
+    reach beyond its last centroid. Width: per midrib node, the width of a strip
+    sampled uniformly whose points read the robust extent (2nd to 98th percentile,
+    :func:`plantsim.evaluation.segmentation.uniform_width`) of the node's points
+    across the midrib, along their main in-plane axis, with ``link`` (the skeleton's link) only over the cross-section's runs
     in the leaf's own plane (another leaf crossing it at a node is left out:
     :func:`plantsim.evaluation.segmentation.node_frames`); the 90th percentile over the nodes of the outer four fifths of
     the midrib (the largest is where a neighbour touches; the base is sheath). Area: the triangulated ribbon between the
@@ -862,7 +865,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       (``Segmentation.min_leaf_length_m``).
     - with ``range_noise_m``, each leaf's width is checked against the width the
       sensor's range noise alone reads across it (``Leaf.noise_width_m``,
-      :func:`leaf_noise_width`): at half the width or more, ``Leaf.width_resolved``
+      :func:`leaf_noise_width`): at 45 % of the width or more, ``Leaf.width_resolved``
       is False and a note gives the leaves and the share of the leaf area they hold.
       A URG-04LX (10 mm noise floor along the beam) reads 9 mm wheat leaves 40-46 mm
       wide: the plane-fit noise the cloud itself shows (3-6 mm, across the surfaces)
@@ -929,9 +932,9 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
 
         notes.append(f"leaf widths not resolved: the range noise alone reads "
                      f"{mm([lf.noise_width_m for lf in unresolved])} mm across "
-                     f"{len(unresolved)} of {len(leaves)} leaves, at least half their "
+                     f"{len(unresolved)} of {len(leaves)} leaves, at least 45 % of their "
                      f"{mm([lf.width_m for lf in unresolved])} mm widths: those widths read the "
-                     f"noise's spread (22 % wide or more), and so does their area, {100 * share:.0f} % "
+                     f"noise's spread (23 % wide or more), and so does their area, {100 * share:.0f} % "
                      "of the leaf area")
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
