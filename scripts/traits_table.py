@@ -107,7 +107,7 @@ def estimate_of(points, range_noise_m=None) -> tuple[dict, tuple[str, ...]]:
     out["mean_leaf_inclination_deg"] = _nan_mean(getattr(e, "leaf_inclinations_deg", ()))
     # A stem whose diameter the noise hides reads its noisy column's width: an upper bound.
     out["stem_diameter_upper_bound"] = any(not st.diameter_resolved for st in e.stems)
-    # Leaves whose width the range noise alone reads half of (Leaf.width_resolved False).
+    # Leaves whose width the range noise alone reads 45 % of (Leaf.width_resolved False).
     unresolved = [lf for lf in e.leaves if lf.width_resolved is False]
     out["unresolved_leaves"] = (len(unresolved), len(e.leaves),
                                 sum(lf.area_m2 for lf in unresolved) / e.leaf_area_m2 if unresolved else 0.0)
@@ -140,7 +140,7 @@ def _cell(value, truth, scale, key) -> str:
     return f"{shown} ({100 * abs(value - truth) / abs(truth):.1f} %)"
 
 
-# Leaf traits read from the widths: marked where the range noise alone reads half a
+# Leaf traits read from the widths: marked where the range noise alone reads 45 % of a
 # leaf's width or more (plantsim.evaluation.traits.Leaf.width_resolved).
 UNRESOLVED_MARKED = ("leaf_area_m2", "leaf_width_m", "median_leaf_width_m")
 
