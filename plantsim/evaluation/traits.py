@@ -761,13 +761,15 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     """Length, width, area, inclination and noise width of one segmented leaf.
 
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
-    reach beyond its last centroid. Width: per midrib node, the width of a strip
-    sampled uniformly whose points read the robust extent (2nd to 98th percentile,
-    :func:`plantsim.evaluation.segmentation.uniform_width`) of the node's points
-    across the midrib, along their main in-plane axis, with ``link`` (the skeleton's link) only over the cross-section's runs
-    in the leaf's own plane (another leaf crossing it at a node is left out:
-    :func:`plantsim.evaluation.segmentation.node_frames`); the 90th percentile over the nodes of the outer four fifths of
-    the midrib (the largest is where a neighbour touches; the base is sheath). Area: the triangulated ribbon between the
+    reach beyond its last centroid. Width: per midrib node, the robust extent (2nd to
+    98th percentile) of the node's points across the midrib, along their main in-plane
+    axis, read as a uniformly sampled strip's width
+    (:func:`plantsim.evaluation.segmentation.uniform_width`), with ``link`` (the
+    skeleton's link) only over the cross-section's runs in the leaf's own plane
+    (another leaf crossing it at a node is left out:
+    :func:`plantsim.evaluation.segmentation.node_frames`); the 90th percentile over
+    the nodes of the outer four fifths of the midrib (the largest is where a
+    neighbour touches; the base is sheath). Area: the triangulated ribbon between the
     two margins, i.e. sum over midrib segments of the mean of the two node widths
     times the segment length (a leaf surface unrolled along its midrib, as in the
     length-width area models of Montgomery 1911, here with the measured width
