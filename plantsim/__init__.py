@@ -82,7 +82,7 @@ _LAZY_MODULES = {
     "plantsim.plant.target": "CalibrationTarget CALIBRATION_TARGET",
     "plantsim.sensor.fit": "fit_sensor FlatTargetRecording SensorFit",
     "plantsim.sensor.flat_target": "FlatTarget simulate_flat_target",
-    "plantsim.hardware.safety": "SafeStop StopAction SafeStopReport",
+    "plantsim.hardware.safety": "SafeStop StopAction SafeStopReport raise_if_signalled",
     "plantsim.cloud.render": "render_scene render_cloud error_picture error_picture_of ErrorPicture View RenderError",
     "plantsim.validation": "SettingTypeError MissingExtraError",
     "plantsim.evaluation.angle_error": "angle_error_displacement",
@@ -101,7 +101,7 @@ __all__ = [
     # parts
     "load_plant", "plant_from_arrays", "PlantMesh", "bundled_plant_path", "build_scene", "Scene", "HitClass",
     "SimulatedLidar", "Caster", "MujocoBackend", "BeamStatus", "Turntable", "SimulatedTurntable",
-    "ServoTurntable", "ServoStatus", "SafeStop", "StopAction", "SafeStopReport",
+    "ServoTurntable", "ServoStatus", "SafeStop", "StopAction", "SafeStopReport", "raise_if_signalled",
     # the raw record and the cloud
     "RawScan", "BeamGrid", "ANGLE_MODES", "read_raw", "write_raw", "reconstruct", "RangeFilter", "filter_ranges",
     "PointCloud", "read_cloud",

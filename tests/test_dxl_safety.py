@@ -10,6 +10,8 @@ import io
 import math
 import os
 import signal
+import sys
+import weakref
 
 import pytest
 
@@ -18,7 +20,7 @@ from plantsim.errors import Terminated, UnsafeStopError
 from plantsim.hardware.dynamixel import driver as dxl_driver
 from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 from plantsim.hardware.dynamixel.turntable import ServoStatus, ServoTurntable
-from plantsim.hardware.safety import SafeStop, StopAction
+from plantsim.hardware.safety import SafeStop, StopAction, raise_if_signalled
 
 # The scheduler allowance for an emulator thread the scheduler keeps waiting (see test_dxl_driver).
 ALLOWANCE_S = 1.0
@@ -100,6 +102,24 @@ def emulator():
 def torque_on_in_emulator(emulator):
     with emulator.lock:
         return emulator.servo(1).torque_on
+
+
+def send_swallowed(signum, monkeypatch):
+    """Sends ``signum`` to this process from inside a weakref callback, where the
+    interpreter prints the handler's exception and goes on ("Exception ignored in"), as
+    it does for a signal landing in an import lock's callback. Returns the exception
+    types the interpreter swallowed (so a test can show it did)."""
+    swallowed = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda unraisable: swallowed.append(unraisable.exc_type))
+
+    class Box:
+        pass
+
+    box = Box()
+    refs = [weakref.ref(box, lambda _ref: signal.raise_signal(signum))]  # kept alive, so it fires
+    del box  # the callback runs here, and the handler inside it
+    assert refs[0]() is None
+    return swallowed
 
 
 def interrupted_moves(emulator, tripwire, goals=(1.0, 2.5, 0.5)):
@@ -275,3 +295,65 @@ def test_a_safety_stop_on_a_silent_servo_pings_once_per_attempt(emulator):
     with emulator.lock:
         ignored = 1000 - emulator.servo(1).silent_count
     assert ignored == 3 * 2  # per attempt: the reconnect's marker and its single ping
+
+
+@pytest.mark.parametrize("signum, interrupt, reason", [(signal.SIGTERM, Terminated, "SIGTERM"),
+                                                        (signal.SIGHUP, Terminated, "SIGHUP"),
+                                                        (signal.SIGINT, KeyboardInterrupt, "Ctrl-C")])
+def test_a_swallowed_signal_is_raised_again_by_the_loop_check(monkeypatch, signum, interrupt, reason):
+    stopped = []
+    after = []
+    with pytest.raises(interrupt) as raised:
+        with SafeStop(sleep=no_sleep) as safety:
+            safety.register("servo torque", lambda: stopped.append(True))
+            assert send_swallowed(signum, monkeypatch) == [interrupt]  # the interpreter went on
+            after.append("the block went on")
+            raise_if_signalled()
+            after.append("past the check")
+    assert after == ["the block went on"]
+    assert getattr(raised.value, "signum", signal.SIGINT) == signum
+    assert stopped == [True] and safety.report.reason == reason and safety.report.safe
+    raise_if_signalled()  # honoured: nothing is left over for the next block or loop
+    with SafeStop(sleep=no_sleep):
+        raise_if_signalled()
+
+
+def test_a_block_ending_normally_after_a_swallowed_sigterm_stops_then_raises_it(monkeypatch):
+    stopped = []
+    with pytest.raises(Terminated) as raised:
+        with SafeStop(sleep=no_sleep) as safety:
+            safety.register("servo torque", lambda: stopped.append(True))
+            send_swallowed(signal.SIGTERM, monkeypatch)
+    assert raised.value.signum == signal.SIGTERM
+    assert stopped == [True] and safety.report.reason == "SIGTERM"
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
+def test_a_swallowed_sigterm_then_an_unconfirmed_stop_says_both(monkeypatch):
+    with pytest.raises(Terminated) as raised:
+        with SafeStop(attempts=1, sleep=no_sleep) as safety:
+            safety.register("servo torque", lambda: None, lambda: False)
+            send_swallowed(signal.SIGTERM, monkeypatch)
+    assert any("DANGER: servo torque NOT confirmed off" in note for note in raised.value.__notes__)
+
+
+def test_a_swallowed_sigterm_under_another_error_is_noted_on_it(monkeypatch):
+    with pytest.raises(ValueError) as raised:
+        with SafeStop(sleep=no_sleep) as safety:
+            send_swallowed(signal.SIGTERM, monkeypatch)
+            raise ValueError("the servo said no")
+    assert safety.report.reason == "SIGTERM"
+    assert raised.value.__notes__ == ["SIGTERM had arrived as well"]
+
+
+def test_the_loop_check_does_nothing_without_a_signal_or_outside_a_block():
+    raise_if_signalled()
+    with SafeStop(sleep=no_sleep):
+        raise_if_signalled()
+    # Outside a block SIGTERM keeps its own handling: the check has nothing recorded.
+    previous = signal.signal(signal.SIGTERM, lambda *_: None)
+    try:
+        signal.raise_signal(signal.SIGTERM)
+        raise_if_signalled()
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -22,7 +22,8 @@ from plantsim.scan.config import OutputOptions, PlantOptions, RunConfig
 from plantsim.scan.journal import read_journal
 from plantsim.scan.pipeline import journal_path_for, run_scan
 from plantsim.scan.schedule import StepScan
-from test_dxl_safety import FAST, Tripwire, ctrl_c_raises, no_sleep, torque_on_in_emulator  # noqa: F401
+from test_dxl_safety import (FAST, Tripwire, ctrl_c_raises, no_sleep, send_swallowed,  # noqa: F401
+                             torque_on_in_emulator)
 
 
 def config_for(cylinder, out):
@@ -77,6 +78,28 @@ def test_sigterm_mid_scan_then_resume_completes(tmp_path, emulator, cylinder, mo
     assert result.lines_resumed == done and result.raw.n_lines == 8
 
 
+@pytest.mark.parametrize("k", [12, 40])
+def test_a_sigterm_the_interpreter_swallows_still_stops_the_scan_within_a_line(tmp_path, emulator, cylinder,
+                                                                              monkeypatch, k):
+    """The CI failure of a `kill` lost in an import lock's callback: the scan ran to its end."""
+    config = config_for(cylinder, tmp_path / "plant.ply")
+    swallowed = []
+    tripwire = Tripwire(monkeypatch, k, "after_write",
+                        fire=lambda: swallowed.extend(send_swallowed(signal.SIGTERM, monkeypatch)))
+    safety = SafeStop(sleep=no_sleep)
+    with pytest.raises(Terminated):
+        with safety:
+            table = ServoTurntable.connect(emulator.port_path, safety=safety, **FAST)
+            tripwire.armed = True
+            with table:
+                run_scan(config, turntable=table)
+    assert tripwire.fired and swallowed == [Terminated]
+    assert safety.report.reason == "SIGTERM" and safety.report.safe
+    assert not torque_on_in_emulator(emulator)
+    lines = read_journal(journal_path_for(config.output.path)).lines
+    assert 0 < len(lines) < 8 and [line.index for line in lines] == list(range(len(lines)))
+
+
 def scan_args(emulator, cylinder, out):
     return ["rig", "scan", cylinder, "--port", emulator.port_path, "--step-deg", "45", "-o", str(out),
             "--retries", "2", "--status-timeout-ms", "500"]
@@ -97,6 +120,20 @@ def test_rig_scan_command_stops_the_servo_on_a_signal(tmp_path, emulator, cylind
         assert "DANGER" not in err
         assert not torque_on_in_emulator(emulator)
         assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
+def test_rig_scan_command_exits_143_on_a_sigterm_the_interpreter_swallowed(tmp_path, emulator, cylinder,
+                                                                          monkeypatch, capsys):
+    swallowed = []
+    tripwire = Tripwire(monkeypatch, 30, "after_write",
+                        fire=lambda: swallowed.extend(send_swallowed(signal.SIGTERM, monkeypatch)))
+    tripwire.armed = True
+    assert cli.main(scan_args(emulator, cylinder, tmp_path / "plant.ply")) == 143
+    err = capsys.readouterr().err
+    assert swallowed == [Terminated]
+    assert "plantsim: terminated (SIGTERM). the lines taken are safe in" in err and "DANGER" not in err
+    assert not torque_on_in_emulator(emulator)
+    assert len(read_journal(journal_path_for(str(tmp_path / "plant.ply"))).lines) < 8
 
 
 def test_rig_scan_process_killed_from_outside_leaves_torque_off(tmp_path, emulator, cylinder):

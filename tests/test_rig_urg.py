@@ -28,6 +28,7 @@ The pair's cloud must match it beam by beam within
 
 import json
 import math
+import signal
 import subprocess
 import sys
 from collections import Counter
@@ -37,8 +38,9 @@ import pytest
 import trimesh
 
 from plantsim.cloud.reconstruct import base_to_turntable, points_base_from_ranges
-from plantsim.errors import ScanInterruptedError
+from plantsim.errors import ScanInterruptedError, Terminated
 from plantsim.hardware.dynamixel.turntable import ServoTurntable
+from plantsim.hardware.safety import SafeStop
 from plantsim.hardware.urg.driver import UrgLidar
 from plantsim.hardware.urg.pair import EmulatorPair
 from plantsim.hardware.urg.source import UrgLineSource
@@ -52,6 +54,7 @@ from plantsim.scan.schedule import StepScan
 from plantsim.sensor.spec import BeamStatus
 from plantsim.turntable.options import TurntableOptions
 from plantsim.turntable.units import RAD_PER_TICK
+from test_dxl_safety import send_swallowed
 
 SPEED_FACTOR = 2.5
 # A long status timeout costs nothing while replies come, and keeps a reply that a loaded machine
@@ -350,3 +353,29 @@ def test_stalled_stream_interrupts_the_scan_with_the_servo_stopped(tmp_path, pla
     finally:
         pair.stop()
     assert len(read_journal(journal_path_for(config.output.path)).lines) >= 8
+
+
+def test_a_swallowed_sigterm_stops_a_continuous_scan_within_a_line_with_the_servo_off(tmp_path, plant, monkeypatch):
+    config = config_for(tmp_path, "continuous")
+    pair = start_pair(config, plant)
+    swallowed = []
+    try:
+        safety = SafeStop(sleep=lambda s: None)
+        with pytest.raises(Terminated):
+            with safety:
+                table = ServoTurntable.connect(pair.servo_port, safety=safety, **FAST)
+                lidar = UrgLidar.connect(pair.lidar_port, preset=config.lidar, host_clock=pair.host_clock,
+                                         timeout_s=5.0, safety=safety)
+                with table, lidar:
+                    def kill_at_10(done, total):
+                        if done == 10:
+                            swallowed.extend(send_swallowed(signal.SIGTERM, monkeypatch))
+
+                    run_scan(config, plant=plant, turntable=table, lidar=UrgLineSource(lidar, config.lidar),
+                             progress=kill_at_10)
+        assert swallowed == [Terminated]  # the interpreter went on; the loop's check stopped the scan
+        assert safety.report.reason == "SIGTERM" and safety.report.safe, safety.report.summary()
+        assert pair.servo.servo(1).get("Torque Enable") == 0
+    finally:
+        pair.stop()
+    assert 10 <= len(read_journal(journal_path_for(config.output.path)).lines) <= 11

@@ -24,6 +24,14 @@ it). Example::
         run_scan(...)
     # safety.report.safe is True, or the user has been told
 
+Python runs a signal's handler at the next bytecode, wherever that is. When it lands in
+a finaliser, a weakref callback or an import lock's callback, the interpreter prints
+the handler's exception ("Exception ignored in ...") and goes on as if nothing had
+happened. So the handlers also record the signal, and :func:`raise_if_signalled`
+raises it again: the scan loops call it after every line, so a swallowed SIGTERM still
+stops the scan within a line. A block that ends normally after a swallowed signal runs
+its stop actions for that signal and then raises it.
+
 Signal handlers can only be installed from the main thread; elsewhere the stop
 actions still run on exit, and SIGTERM keeps its previous handling.
 """
@@ -133,7 +141,8 @@ class SafeStop:
         attempts: tries per action before it is reported unconfirmed.
         retry_interval_s: pause between tries, s.
         signals: signals turned into :class:`~plantsim.errors.Terminated` inside the
-            block (main thread only). SIGINT keeps raising ``KeyboardInterrupt``.
+            block (main thread only). SIGINT keeps raising ``KeyboardInterrupt`` (through
+            a handler that also records it, when Python's own handler is in place).
         sleep: the pause function (tests pass a fake one).
     """
 
@@ -209,17 +218,32 @@ class SafeStop:
 
     def __enter__(self) -> "SafeStop":
         if threading.current_thread() is threading.main_thread():
+            _received.clear()
             for signum in self._signals:
                 self._previous_handlers[signum] = signal.signal(signum, _raise_terminated)
+            if signal.SIGINT not in self._signals and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+                self._previous_handlers[signal.SIGINT] = signal.signal(signal.SIGINT, _raise_interrupt)
         return self
 
     def __exit__(self, exc_type, exc, tb) -> bool:
+        # A signal whose exception was swallowed (see the module's docstring) still ends the block as that
+        # signal; one whose exception is the one unwinding the block has been honoured.
+        swallowed = None if isinstance(exc, KeyboardInterrupt) else (_received[0] if _received else None)
+        _received.clear()
         try:
-            report = self.stop_all(_reason(exc))
+            reason = _reason(exc) if swallowed is None else _SIGNAL_NAMES.get(swallowed, f"signal {swallowed}")
+            report = self.stop_all(reason)
         finally:
             for signum, handler in self._previous_handlers.items():
                 signal.signal(signum, handler)
             self._previous_handlers.clear()
+        if swallowed is not None:
+            if exc is None:
+                interrupt = _interrupt_for(swallowed)
+                if not report.safe:
+                    interrupt.add_note(report.warning())
+                raise interrupt
+            exc.add_note(f"{reason} had arrived as well")
         if not report.safe:
             if exc is None:
                 raise UnsafeStopError(report.warning(), report=report)
@@ -227,8 +251,35 @@ class SafeStop:
         return False
 
 
+# Signals received inside a SafeStop block (main thread) whose exception has not yet ended it.
+_received: list[int] = []
+
+
+def raise_if_signalled() -> None:
+    """Raises again a signal that arrived inside a :class:`SafeStop` block but was swallowed.
+
+    A loop that drives the hardware calls this once per line (the scan loops do): a
+    SIGTERM, SIGHUP or Ctrl-C whose exception the interpreter swallowed (its handler
+    ran inside a finaliser or a callback) then still stops the loop within one line, as
+    :class:`~plantsim.errors.Terminated` or ``KeyboardInterrupt``. Outside a block, or
+    when no signal has come, it does nothing.
+    """
+    if _received:
+        raise _interrupt_for(_received[0])
+
+
+def _interrupt_for(signum: int) -> KeyboardInterrupt:
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
 def _raise_terminated(signum, frame) -> None:
+    _received.append(signum)
     raise Terminated(signum)
+
+
+def _raise_interrupt(signum, frame) -> None:
+    _received.append(signum)
+    raise KeyboardInterrupt
 
 
 def _reason(exc: BaseException | None) -> str:

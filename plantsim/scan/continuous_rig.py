@@ -45,6 +45,7 @@ from typing import Callable
 import numpy as np
 
 from plantsim.errors import HardwareError, ScanInterruptedError
+from plantsim.hardware.safety import raise_if_signalled
 from plantsim.scan.journal import Journal, open_journal
 from plantsim.scan.raw import BeamGrid, RawScan
 from plantsim.scan.session import raw_from_lines, real_line
@@ -545,6 +546,7 @@ def _turn_and_stream(journal: Journal, servo: ContinuousServo, source, grid: Bea
             stalled = skipped = 0
             begun = False
             for line in itertools.chain([first], stream):
+                raise_if_signalled()  # a SIGTERM the interpreter swallowed still stops the scan here
                 poller.wait_past(float(line.beam_host_times_s[-1]), reading_timeout_s)
                 with poller._new:
                     n_readings = len(poller.readings)

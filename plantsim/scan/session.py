@@ -30,6 +30,7 @@ from typing import Callable
 import numpy as np
 
 from plantsim.errors import HardwareError, ScanInterruptedError
+from plantsim.hardware.safety import raise_if_signalled
 from plantsim.scan.journal import Journal, JournalLine, open_journal
 from plantsim.scan.raw import BeamGrid, RawScan, lidar_pose_of, s_to_ns
 from plantsim.scan.schedule import StepScan
@@ -127,6 +128,7 @@ def run_session(*, turntable: Turntable, source, grid: BeamGrid, schedule: StepS
                 intensity=None if line.intensity is None else line.intensity[0]))
             if progress is not None:
                 progress(index + 1, n_lines)
+            raise_if_signalled()  # a SIGTERM the interpreter swallowed still stops the scan here
     raw = raw_from_lines(journal.lines, grid=grid,
                          T_base_lidar=source.scene.T_base_lidar if T_base_lidar is None else T_base_lidar,
                          angle_mode=angle_mode, start_unix_ns=int(started * 1e9),
