@@ -20,7 +20,8 @@ from plantsim.errors import Terminated, UnsafeStopError
 from plantsim.hardware.dynamixel import driver as dxl_driver
 from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 from plantsim.hardware.dynamixel.turntable import ServoStatus, ServoTurntable
-from plantsim.hardware.safety import SafeStop, StopAction, raise_if_signalled
+from plantsim.hardware.safety import SafeStop, StopAction
+from plantsim.interrupts import raise_if_signalled
 
 # The scheduler allowance for an emulator thread the scheduler keeps waiting (see test_dxl_driver).
 ALLOWANCE_S = 1.0

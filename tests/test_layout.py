@@ -16,7 +16,7 @@ PACKAGE = Path(plantsim.__file__).resolve().parent
 # Layers, lowest first: a module may import (at load time) only from its own layer or below.
 LAYERS = [
     {"plantsim._lazy", "plantsim._cores", "plantsim.errors", "plantsim.transforms", "plantsim.resources", "plantsim.timestamps",
-     "plantsim.validation"},
+     "plantsim.validation", "plantsim.interrupts"},
     {"plantsim.plant"},
     {"plantsim.rig"},
     {"plantsim.sensor", "plantsim.turntable"},

@@ -27,10 +27,11 @@ it). Example::
 Python runs a signal's handler at the next bytecode, wherever that is. When it lands in
 a finaliser, a weakref callback or an import lock's callback, the interpreter prints
 the handler's exception ("Exception ignored in ...") and goes on as if nothing had
-happened. So the handlers also record the signal, and :func:`raise_if_signalled`
-raises it again: the scan loops call it after every line, so a swallowed SIGTERM still
-stops the scan within a line. A block that ends normally after a swallowed signal runs
-its stop actions for that signal and then raises it.
+happened. So the handlers also record the signal (:mod:`plantsim.interrupts`), and
+:func:`~plantsim.interrupts.raise_if_signalled` raises it again: the scan loops call
+it after every line, so a swallowed SIGTERM still stops the scan within a line. A
+block that ends normally after a swallowed signal runs its stop actions for that
+signal and then raises it.
 
 Signal handlers can only be installed from the main thread; elsewhere the stop
 actions still run on exit, and SIGTERM keeps its previous handling.
@@ -45,6 +46,7 @@ import threading
 import time
 from typing import Callable
 
+from plantsim import interrupts
 from plantsim.errors import Terminated, UnsafeStopError
 
 _log = logging.getLogger(__name__)
@@ -218,7 +220,7 @@ class SafeStop:
 
     def __enter__(self) -> "SafeStop":
         if threading.current_thread() is threading.main_thread():
-            _received.clear()
+            interrupts.clear()
             for signum in self._signals:
                 self._previous_handlers[signum] = signal.signal(signum, _raise_terminated)
             if signal.SIGINT not in self._signals and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
@@ -228,8 +230,8 @@ class SafeStop:
     def __exit__(self, exc_type, exc, tb) -> bool:
         # A signal whose exception was swallowed (see the module's docstring) still ends the block as that
         # signal; one whose exception is the one unwinding the block has been honoured.
-        swallowed = None if isinstance(exc, KeyboardInterrupt) else (_received[0] if _received else None)
-        _received.clear()
+        swallowed = None if isinstance(exc, KeyboardInterrupt) else interrupts.pending()
+        interrupts.clear()
         try:
             reason = _reason(exc) if swallowed is None else _SIGNAL_NAMES.get(swallowed, f"signal {swallowed}")
             report = self.stop_all(reason)
@@ -239,7 +241,7 @@ class SafeStop:
             self._previous_handlers.clear()
         if swallowed is not None:
             if exc is None:
-                interrupt = _interrupt_for(swallowed)
+                interrupt = interrupts.interrupt_for(swallowed)
                 if not report.safe:
                     interrupt.add_note(report.warning())
                 raise interrupt
@@ -251,34 +253,13 @@ class SafeStop:
         return False
 
 
-# Signals received inside a SafeStop block (main thread) whose exception has not yet ended it.
-_received: list[int] = []
-
-
-def raise_if_signalled() -> None:
-    """Raises again a signal that arrived inside a :class:`SafeStop` block but was swallowed.
-
-    A loop that drives the hardware calls this once per line (the scan loops do): a
-    SIGTERM, SIGHUP or Ctrl-C whose exception the interpreter swallowed (its handler
-    ran inside a finaliser or a callback) then still stops the loop within one line, as
-    :class:`~plantsim.errors.Terminated` or ``KeyboardInterrupt``. Outside a block, or
-    when no signal has come, it does nothing.
-    """
-    if _received:
-        raise _interrupt_for(_received[0])
-
-
-def _interrupt_for(signum: int) -> KeyboardInterrupt:
-    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
-
-
 def _raise_terminated(signum, frame) -> None:
-    _received.append(signum)
+    interrupts.record(signum)
     raise Terminated(signum)
 
 
 def _raise_interrupt(signum, frame) -> None:
-    _received.append(signum)
+    interrupts.record(signum)
     raise KeyboardInterrupt
 
 

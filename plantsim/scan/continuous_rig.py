@@ -45,7 +45,7 @@ from typing import Callable
 import numpy as np
 
 from plantsim.errors import HardwareError, ScanInterruptedError
-from plantsim.hardware.safety import raise_if_signalled
+from plantsim.interrupts import raise_if_signalled
 from plantsim.scan.journal import Journal, open_journal
 from plantsim.scan.raw import BeamGrid, RawScan
 from plantsim.scan.session import raw_from_lines, real_line

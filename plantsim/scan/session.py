@@ -30,7 +30,7 @@ from typing import Callable
 import numpy as np
 
 from plantsim.errors import HardwareError, ScanInterruptedError
-from plantsim.hardware.safety import raise_if_signalled
+from plantsim.interrupts import raise_if_signalled
 from plantsim.scan.journal import Journal, JournalLine, open_journal
 from plantsim.scan.raw import BeamGrid, RawScan, lidar_pose_of, s_to_ns
 from plantsim.scan.schedule import StepScan
