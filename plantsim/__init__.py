@@ -57,7 +57,7 @@ _LAZY_MODULES = {
     "plantsim.resources": "bundled_plant_path",
     "plantsim.rig.geometry": "RigGeometry",
     "plantsim.rig.scene": "HitClass Scene build_scene",
-    "plantsim.scan.config": "OutputOptions PlantOptions RangeFilter RunConfig config_from_dict load_toml",
+    "plantsim.scan.config": "OutputOptions PlantOptions RangeFilter RunConfig config_from_dict load_toml load_settings recorded_settings",
     "plantsim.scan.pipeline": "ScanResult run_scan simulated_rig_time_s with_evaluation write_result performance",
     "plantsim.scan.plan": "ScanPlan plan_scan",
     "plantsim.scan.raw": "ANGLE_MODES BeamGrid RawScan",
@@ -97,7 +97,8 @@ __all__ = [
     # scanning
     "RunConfig", "PlantOptions", "OutputOptions", "StepScan", "TurntableOptions", "TurntableDynamics",
     "JitterConfig", "EncoderConfig", "ServoConfig", "SensorModel", "LidarSpec", "PRESETS", "URG_04LX_UG01",
-    "lidar_preset", "RigGeometry", "config_from_dict", "load_toml", "plan_scan", "ScanPlan", "run_scan",
+    "lidar_preset", "RigGeometry", "config_from_dict", "load_toml", "load_settings", "recorded_settings",
+    "plan_scan", "ScanPlan", "run_scan",
     "ScanResult", "write_result", "with_evaluation", "simulated_rig_time_s", "performance",
     # parts
     "load_plant", "plant_from_arrays", "PlantMesh", "bundled_plant_path", "build_scene", "Scene", "HitClass",

@@ -74,6 +74,63 @@ def test_toml_config_and_command_line_precedence(tmp_path, small_mesh):
     assert not (tmp_path / "from_toml.ply").exists()
 
 
+def test_a_sidecar_as_config_runs_the_same_scan_again(tmp_path, small_mesh, capsys):
+    first = tmp_path / "first.las"
+    assert main(["scan", str(small_mesh), "-o", str(first), "--step-deg", "30", "--seed", "7", "--units", "m",
+                 "--lidar", "utm-30lx"]) == 0
+    sidecar = tmp_path / "first.las.json"
+    again = tmp_path / "again.las"
+    assert main(["scan", "--config", str(sidecar), "-o", str(again)]) == 0
+    a, b = laspy.read(first), laspy.read(again)
+    assert len(a.points) > 100 and np.array_equal(a.xyz, b.xyz)  # same seed, same parts: the same cloud
+    recorded, rerun = (json.loads(p.read_text())["config"] for p in (sidecar, tmp_path / "again.las.json"))
+    assert recorded.pop("output") != rerun.pop("output") and recorded == rerun
+    # Options given on top of it win, as over a TOML file.
+    assert main(["scan", "--config", str(sidecar), "-o", str(tmp_path / "coarse.las"), "--step-deg", "90"]) == 0
+    meta = json.loads((tmp_path / "coarse.las.json").read_text())
+    assert meta["config"]["scan"]["step_deg"] == 90 and meta["config"]["lidar"]["name"] == "utm-30lx"
+    assert meta["counts"]["beams"] == 4 * meta["config"]["lidar"]["n_beams"]
+    capsys.readouterr()
+    # Its recorded output is the scan it describes: refused, and nothing is overwritten.
+    before = first.read_bytes(), sidecar.read_bytes()
+    assert main(["scan", "--config", str(sidecar)]) == 2
+    assert "configuration file" in capsys.readouterr().err
+    assert (first.read_bytes(), sidecar.read_bytes()) == before
+
+
+def test_recorded_settings_give_back_the_recorded_config():
+    from plantsim.scan.config import config_from_dict, recorded_settings
+
+    cases = [
+        {},
+        {"ideal": True, "scan": {"step_deg": 30}, "seed": 5},
+        {"turntable": {"mode": "continuous", "rpm": 2.0, "jitter": {"backlash_deg": 0.1},
+                       "encoder": {"ticks_per_rev": 0}, "registers": {"Position P Gain": 900}},
+         "lidar": {"preset": "utm-30lx", "range_max_m": 20.0}, "sensor_model": {"footprint_rings": 3},
+         "range_filter": {"enabled": True}, "rig": {"lidar_distance_m": 0.5}, "seed": 4, "threads": 1,
+         "plant": {"units": "mm", "mesh": "x.stl",
+                   "T_turntable_mesh": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.01], [0, 0, 0, 1]]}},
+        {"turntable": {"servo_preset": "xl430-w250", "physics": "dynamic", "timestep_s": 0.002},
+         "output": {"path": "a.ply", "raw": "bag"}, "sensor": "ideal"},
+    ]
+    for settings in cases:
+        recorded = json.loads(json.dumps(config_from_dict(settings).to_dict()))  # as a sidecar holds it
+        assert json.loads(json.dumps(config_from_dict(recorded_settings(recorded)).to_dict())) == recorded
+    assert recorded_settings(json.loads(json.dumps(config_from_dict({}).to_dict()))) == {}  # defaults only: none
+    assert recorded_settings(json.loads(json.dumps(config_from_dict(cases[1]).to_dict()))) == cases[1]
+
+
+@pytest.mark.parametrize("text, words", [("{}", "not a plantsim sidecar"), ("[1, 2]", "not a plantsim sidecar"),
+                                         ("{\"config\": {\"plant\": {}}}", "not a recorded scan configuration"),
+                                         ("not json", "is not a readable JSON file")])
+def test_a_json_config_that_is_not_a_sidecar_is_refused_in_one_line(tmp_path, small_mesh, capsys, text, words):
+    (tmp_path / "bad.json").write_text(text)
+    assert main(["scan", str(small_mesh), "--config", str(tmp_path / "bad.json"), "-o", str(tmp_path / "x.las")]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1
+    assert not (tmp_path / "x.las").exists()
+
+
 BAD_CASES = {
     "missing mesh": (["missing.stl"], "mesh file not found: missing.stl"),
     "empty mesh": (["empty.stl"], "is empty"),

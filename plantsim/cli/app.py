@@ -69,12 +69,13 @@ def resolve_config(args: argparse.Namespace, overrides: dict):
     """The RunConfig of a command: its TOML file (``--config``), then the command-line options."""
     from pathlib import Path
 
-    from plantsim.scan.config import config_from_dict, load_toml, merge
+    from plantsim.scan.config import config_from_dict, load_settings, merge
 
     data, base_dir = {}, None
     if args.config:
-        data = load_toml(args.config)
-        base_dir = Path(args.config).resolve().parent
+        data = load_settings(args.config)
+        # A TOML file's mesh is relative to the file; a sidecar's is as recorded.
+        base_dir = Path(args.config).resolve().parent if Path(args.config).suffix.lower() != ".json" else None
     if _opt(args, "turntable") == "dynamic":
         overrides.setdefault("turntable", {})["physics"] = "dynamic"
     # A mesh given on the command line is relative to the working directory.
@@ -195,7 +196,8 @@ def add_common_scan_options(parser: argparse.ArgumentParser, *, preset_flag: str
     """Options shared by ``scan`` and ``rig scan``: plant, schedule, sensor, output."""
     parser.add_argument("mesh", nargs="?", help="plant mesh; default: the bundled maize")
     parser.add_argument("-o", "--output", help="output point cloud (default scan.las)")
-    parser.add_argument("--config", help="TOML file with any of the options")
+    parser.add_argument("--config", help="TOML file with any of the options, or a scan's sidecar (.json): "
+                        "runs that scan again, with the options given here on top")
     parser.add_argument("--units", choices=["m", "cm", "mm"], help="the mesh file's unit (default m)")
     parser.add_argument("--up", choices=["x", "y", "z"], help="the mesh file's up axis (default z)")
     parser.add_argument("--placement", choices=["base", "bbox", "none"],

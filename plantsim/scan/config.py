@@ -277,6 +277,84 @@ def config_from_dict(data: dict[str, Any], *, base_dir: str | os.PathLike | None
         raise ConfigError(str(exc)) from exc
 
 
+def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
+    """The settings of a recorded scan, ready for :func:`config_from_dict`.
+
+    ``recorded`` is a sidecar's ``config`` (:meth:`RunConfig.to_dict`: every setting,
+    resolved, in the dataclasses' nesting). Returned in the TOML layout, with only the
+    settings that differ from the defaults, so a scan is run again exactly (same seed,
+    same parts) and options given on top of them are refused or honoured as if given
+    with the original ones. ``config_from_dict(recorded_settings(c)).to_dict() == c``.
+
+    Raises:
+        ConfigError: when ``recorded`` is not a recorded configuration.
+    """
+    def layout(config: dict[str, Any]) -> dict[str, Any]:
+        try:
+            out = {name: dict(config[name]) for name in list(_SECTIONS) + ["lidar"]}
+            out.update({name: config[name] for name in _TOP_LEVEL})
+            recorded_table = config["turntable"]
+            dynamics = dict(recorded_table["dynamics"])
+            turntable = {key: value for key, value in recorded_table.items() if key not in ("dynamics", "encoder")}
+            turntable.update(servo=dict(dynamics.pop("servo")), jitter=dict(dynamics.pop("jitter")), **dynamics)
+            encoder = dict(recorded_table["encoder"])
+            if encoder.get("ticks_per_rev") is None:
+                encoder["ticks_per_rev"] = 0  # the TOML's "exact"
+            turntable["encoder"] = encoder
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ConfigError(f"not a recorded scan configuration (a sidecar's \"config\"): {type(exc).__name__}: "
+                              f"{exc}") from exc
+        out["turntable"] = turntable
+        return out
+
+    def differing(values: dict[str, Any], defaults: dict[str, Any]) -> dict[str, Any]:
+        out = {}
+        for key, value in values.items():
+            default = defaults.get(key, _MISSING)
+            if isinstance(value, dict) and isinstance(default, dict):
+                value = differing(value, default)
+                if value:
+                    out[key] = value
+            elif not _same(value, default):
+                out[key] = value
+        return out
+
+    if not isinstance(recorded, dict):
+        raise ConfigError(f"a recorded configuration is a JSON object, got {type(recorded).__name__}")
+    return differing(layout(recorded), layout(RunConfig().to_dict()))
+
+
+_MISSING = object()
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal as JSON data (a tuple and a list of the same items are the same)."""
+    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and a == b or (isinstance(a, (int, float)) and isinstance(b, (int, float))
+                                            and not isinstance(a, bool) and not isinstance(b, bool) and a == b)
+
+
+def load_settings(path: str | os.PathLike) -> dict[str, Any]:
+    """The settings of a ``--config`` file: a TOML file, or a scan's sidecar (``.json``),
+    whose recorded configuration (:func:`recorded_settings`) runs that scan again."""
+    path = Path(path)
+    if path.suffix.lower() != ".json":
+        return load_toml(path)
+    import json
+
+    if not path.is_file():
+        raise FileNotFoundError(f"config file not found: {path}")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ConfigError(f"{path} is not a readable JSON file: {exc}") from exc
+    if not isinstance(meta, dict) or "config" not in meta:
+        raise ConfigError(f"{path} is not a plantsim sidecar (no \"config\" key); give a TOML file or the "
+                          ".json written beside a scan's cloud")
+    return recorded_settings(meta["config"])
+
+
 def load_toml(path: str | os.PathLike) -> dict[str, Any]:
     """Reads a TOML configuration file."""
     if sys.version_info >= (3, 11):  # imported here: a scan without a file never parses TOML
