@@ -58,9 +58,9 @@ def test_ctrl_c_at_many_points_of_a_scan_leaves_torque_off(tmp_path, emulator, c
     assert fired >= 6
 
 
-def test_sigterm_mid_scan_then_resume_completes(tmp_path, emulator, cylinder, monkeypatch):
-    config = config_for(cylinder, tmp_path / "plant.ply")
-    tripwire = Tripwire(monkeypatch, 40, "after_write", fire=lambda: os.kill(os.getpid(), signal.SIGTERM))
+def scan_until_terminated(config, emulator, tripwire):
+    """Runs the scan under a SafeStop with ``tripwire`` armed, expecting it to end as
+    SIGTERM (``Terminated``); returns the SafeStop."""
     safety = SafeStop(sleep=no_sleep)
     with pytest.raises(Terminated):
         with safety:
@@ -68,6 +68,13 @@ def test_sigterm_mid_scan_then_resume_completes(tmp_path, emulator, cylinder, mo
             tripwire.armed = True
             with table:
                 run_scan(config, turntable=table)
+    return safety
+
+
+def test_sigterm_mid_scan_then_resume_completes(tmp_path, emulator, cylinder, monkeypatch):
+    config = config_for(cylinder, tmp_path / "plant.ply")
+    tripwire = Tripwire(monkeypatch, 40, "after_write", fire=lambda: os.kill(os.getpid(), signal.SIGTERM))
+    safety = scan_until_terminated(config, emulator, tripwire)
     assert safety.report.reason == "SIGTERM" and safety.report.safe
     assert not torque_on_in_emulator(emulator)
     done = len(read_journal(journal_path_for(config.output.path)).lines)
@@ -86,13 +93,7 @@ def test_a_sigterm_the_interpreter_swallows_still_stops_the_scan_within_a_line(t
     swallowed = []
     tripwire = Tripwire(monkeypatch, k, "after_write",
                         fire=lambda: swallowed.extend(send_swallowed(signal.SIGTERM, monkeypatch)))
-    safety = SafeStop(sleep=no_sleep)
-    with pytest.raises(Terminated):
-        with safety:
-            table = ServoTurntable.connect(emulator.port_path, safety=safety, **FAST)
-            tripwire.armed = True
-            with table:
-                run_scan(config, turntable=table)
+    safety = scan_until_terminated(config, emulator, tripwire)
     assert tripwire.fired and swallowed == [Terminated]
     assert safety.report.reason == "SIGTERM" and safety.report.safe
     assert not torque_on_in_emulator(emulator)

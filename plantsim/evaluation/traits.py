@@ -899,14 +899,15 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
             raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
                              f"got {noise.shape}")
     above, seg = _segment_above(pts, s)
-    noise_seg = None if noise is None else noise[_above_mask(pts, s)][seg.kept]
+    noise_above = None if noise is None else noise[_above_mask(pts, s)]
+    noise_seg = None if noise is None else noise_above[seg.kept]
     notes: list[str] = []
     height_scale = seg.scale
     if noise is not None:
         # Apparent noise the sensor cannot have made is the plant's own fine structure (thin
         # organs crossing within a plane fit's ball: the seed rig's ideal wheat shows 2.3 mm):
         # the top voxel asks for the points of the noise the scan really has.
-        sensor_noise_m = float(np.median(np.linalg.norm(noise[_above_mask(pts, s)], axis=1)))
+        sensor_noise_m = float(np.median(np.linalg.norm(noise_above, axis=1)))
         height_scale = dataclasses.replace(seg.scale, noise_m=min(seg.scale.noise_m, sensor_noise_m))
     height = robust_height(above, base_z=s.base_z, scale=seg.scale,
                            min_points=top_voxel_min_points(height_scale))

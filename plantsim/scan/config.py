@@ -310,29 +310,21 @@ def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
     def differing(values: dict[str, Any], defaults: dict[str, Any]) -> dict[str, Any]:
         out = {}
         for key, value in values.items():
-            default = defaults.get(key, _MISSING)
+            default = defaults.get(key)
             if isinstance(value, dict) and isinstance(default, dict):
                 value = differing(value, default)
                 if value:
                     out[key] = value
-            elif not _same(value, default):
+            elif key not in defaults or value != default:
                 out[key] = value
         return out
 
     if not isinstance(recorded, dict):
         raise ConfigError(f"a recorded configuration is a JSON object, got {type(recorded).__name__}")
-    return differing(layout(recorded), layout(RunConfig().to_dict()))
+    import json
 
-
-_MISSING = object()
-
-
-def _same(a: Any, b: Any) -> bool:
-    """Equal as JSON data (a tuple and a list of the same items are the same)."""
-    if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
-    return type(a) is type(b) and a == b or (isinstance(a, (int, float)) and isinstance(b, (int, float))
-                                            and not isinstance(a, bool) and not isinstance(b, bool) and a == b)
+    defaults = json.loads(json.dumps(RunConfig().to_dict()))  # as a sidecar holds them: lists, not tuples
+    return differing(layout(recorded), layout(defaults))
 
 
 def load_settings(path: str | os.PathLike) -> dict[str, Any]:
