@@ -120,9 +120,10 @@ def test_recorded_settings_give_back_the_recorded_config():
     assert recorded_settings(json.loads(json.dumps(config_from_dict(cases[1]).to_dict()))) == cases[1]
 
 
-@pytest.mark.parametrize("text, words", [("{}", "not a plantsim sidecar"), ("[1, 2]", "not a plantsim sidecar"),
+@pytest.mark.parametrize("text, words", [("{}", "not a plantsim sidecar"), ("  {\"a\": 1}", "not a plantsim sidecar"),
                                          ("{\"config\": {\"plant\": {}}}", "not a recorded scan configuration"),
-                                         ("not json", "is not a readable JSON file")])
+                                         ("{not json", "is not a readable JSON file"),
+                                         ("[scan]\nstepdeg = 3\n", "unknown key(s) stepdeg in [scan]")])
 def test_a_json_config_that_is_not_a_sidecar_is_refused_in_one_line(tmp_path, small_mesh, capsys, text, words):
     (tmp_path / "bad.json").write_text(text)
     assert main(["scan", str(small_mesh), "--config", str(tmp_path / "bad.json"), "-o", str(tmp_path / "x.las")]) == 2

@@ -66,16 +66,13 @@ def _progress_bar(total_label: str, unit: str = "line"):
 
 
 def resolve_config(args: argparse.Namespace, overrides: dict):
-    """The RunConfig of a command: its TOML file (``--config``), then the command-line options."""
-    from pathlib import Path
-
+    """The RunConfig of a command: its ``--config`` file (TOML, or a scan's sidecar), then the
+    command-line options."""
     from plantsim.scan.config import config_from_dict, load_settings, merge
 
     data, base_dir = {}, None
     if args.config:
-        data = load_settings(args.config)
-        # A TOML file's mesh is relative to the file; a sidecar's is as recorded.
-        base_dir = Path(args.config).resolve().parent if Path(args.config).suffix.lower() != ".json" else None
+        data, base_dir = load_settings(args.config)  # a TOML file's mesh is relative to it; a sidecar's as recorded
     if _opt(args, "turntable") == "dynamic":
         overrides.setdefault("turntable", {})["physics"] = "dynamic"
     # A mesh given on the command line is relative to the working directory.

@@ -327,24 +327,37 @@ def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
     return differing(layout(recorded), layout(defaults))
 
 
-def load_settings(path: str | os.PathLike) -> dict[str, Any]:
-    """The settings of a ``--config`` file: a TOML file, or a scan's sidecar (``.json``),
-    whose recorded configuration (:func:`recorded_settings`) runs that scan again."""
-    path = Path(path)
-    if path.suffix.lower() != ".json":
-        return load_toml(path)
-    import json
+def load_settings(path: str | os.PathLike) -> tuple[dict[str, Any], Path | None]:
+    """The settings of a ``--config`` file, and the folder its relative mesh path is in.
 
+    A TOML file (mesh paths relative to its folder), or a scan's sidecar, told by its
+    content (a JSON object; a TOML document cannot open with ``{``): its recorded
+    configuration (:func:`recorded_settings`) runs that scan again, and its mesh path
+    is as recorded (folder None).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ConfigError: not valid TOML, or a JSON object that is not a sidecar.
+    """
+    path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"config file not found: {path}")
     try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path} cannot be read as text: {exc}") from exc
+    if not text.lstrip().startswith("{"):
+        return load_toml(path), path.resolve().parent
+    import json
+
+    try:
+        meta = json.loads(text)
+    except ValueError as exc:
         raise ConfigError(f"{path} is not a readable JSON file: {exc}") from exc
     if not isinstance(meta, dict) or "config" not in meta:
         raise ConfigError(f"{path} is not a plantsim sidecar (no \"config\" key); give a TOML file or the "
                           ".json written beside a scan's cloud")
-    return recorded_settings(meta["config"])
+    return recorded_settings(meta["config"]), None
 
 
 def load_toml(path: str | os.PathLike) -> dict[str, Any]:
