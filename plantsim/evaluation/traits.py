@@ -909,8 +909,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         # the top voxel asks for the points of the noise the scan really has.
         sensor_noise_m = float(np.median(np.linalg.norm(noise_above, axis=1)))
         height_scale = dataclasses.replace(seg.scale, noise_m=min(seg.scale.noise_m, sensor_noise_m))
-    height = robust_height(above, base_z=s.base_z, scale=seg.scale,
-                           min_points=top_voxel_min_points(height_scale))
+    top_min_points = top_voxel_min_points(height_scale)
+    height = robust_height(above, base_z=s.base_z, scale=seg.scale, min_points=top_min_points)
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points,
                        diameter_resolved=st.diameter_resolved)
@@ -951,7 +951,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
     # top; no stem can then read taller than the plant.
-    stem_tops = [robust_height(sp, base_z=s.base_z, scale=seg.scale, min_points=top_voxel_min_points(height_scale))
+    stem_tops = [robust_height(sp, base_z=s.base_z, scale=seg.scale, min_points=top_min_points)
                  for sp in (seg.points[seg.stem_label == i] for i in range(len(stems))) if len(sp)]
     stem_height = max(stem_tops) if stem_tops and stems else _NAN
     if not leaves:

@@ -284,7 +284,8 @@ def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
     resolved, in the dataclasses' nesting). Returned in the TOML layout, with only the
     settings that differ from the defaults, so a scan is run again exactly (same seed,
     same parts) and options given on top of them are refused or honoured as if given
-    with the original ones. ``config_from_dict(recorded_settings(c)).to_dict() == c``.
+    with the original ones. ``config_from_dict(recorded_settings(c)).to_dict()`` is ``c``
+    (as JSON: lists for tuples).
 
     Raises:
         ConfigError: when ``recorded`` is not a recorded configuration.
