@@ -861,7 +861,10 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       largest over stems (valid while the stem is not hidden by leaves wrapped round
       it; reads low where the stem's path is lost in a whorl, and high where a noisy
       column is walked up through the leaves round the axis).
-    - leaves: one per skeleton tip branch; per leaf length, width, area and
+    - leaves: one per skeleton tip branch that is a sampled surface (a branch with
+      fewer points than spacings along it is a trail of mixed pixels, strays or a
+      filament such as a tassel branch: not counted, with a note); per leaf length,
+      width, area and
       inclination (:func:`_leaf_measures`); ``leaf_area_m2`` their sum (one side).
       With no branch long enough to be a leaf: count 0, area, length and width
       NaN (not measured, never 0) and a note naming the length a branch needed
@@ -935,6 +938,11 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         leaves.append(Leaf(index=i, length_m=length, width_m=width, n_points=int(len(lp)),
                            area_m2=area, inclination_deg=incl, noise_width_m=noise_width,
                            width_resolved=resolved))
+    if seg.sparse_branches:
+        notes.append(f"{seg.sparse_branches} branch{'es' if seg.sparse_branches > 1 else ''} long enough to be "
+                     "a leaf not counted as leaves: each holds fewer points than there are point spacings "
+                     "along it, a trail rather than a sampled surface (mixed pixels strung behind a leaf's "
+                     "edge, stray points, or a filament thinner than the spacing, such as a tassel branch)")
     unresolved = [lf for lf in leaves if lf.width_resolved is False]
     if unresolved:
         share = sum(lf.area_m2 for lf in unresolved) / max(sum(lf.area_m2 for lf in leaves), 1e-300)
