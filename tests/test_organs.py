@@ -379,12 +379,17 @@ def test_a_sensor_known_noise_free_lets_two_points_set_the_top_of_a_cloud_that_l
     gained = []
     for seed in range(3):
         cloud = sheet_on_a_stem(0.003, seed)
-        unknown = traits.extract_traits(cloud).height_m
-        clean = traits.extract_traits(cloud, range_noise_m=np.zeros_like(cloud)).height_m
+        unknown = traits.extract_traits(cloud)
+        clean = traits.extract_traits(cloud, range_noise_m=np.zeros_like(cloud))
         loud = np.zeros_like(cloud)
         loud[:, 2] = 0.01  # 10 mm along vertical beams
-        assert traits.extract_traits(cloud, range_noise_m=loud).height_m == unknown
-        gained.append(clean - unknown)
+        noisy = traits.extract_traits(cloud, range_noise_m=loud)
+        assert noisy.height_m == unknown.height_m
+        gained.append(clean.height_m - unknown.height_m)
+        # The output says which noise set the top voxel when the sensor's did.
+        said = [n for n in clean.notes if n.startswith("height: the top voxel needed 2 points")]
+        assert len(said) == 1 and "for the sensor's range noise (0 mm), not 4 " in said[0], clean.notes
+        assert not any(n.startswith("height:") for n in unknown.notes + noisy.notes)
     assert min(gained) >= 0 and np.mean(gained) > 0.001
 
 
