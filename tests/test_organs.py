@@ -433,3 +433,27 @@ def test_mixed_pixel_trails_of_a_scan_without_range_noise_are_not_leaves():
     assert est.leaf_count == len(seg.leaf_midribs)
     assert any(n.startswith(f"{seg.sparse_branches} branches long enough to be a leaf not counted as leaves")
                for n in est.notes)
+
+
+def test_a_found_leaf_that_surrounds_the_axis_is_said_to_be_a_ring_of_leaves():
+    # A full annulus of points (a rosette's leaves blurred together) labelled one leaf,
+    # beside a strip leaf 20 degrees wide; no stem, so the axis is the cloud's centre.
+    rng = np.random.default_rng(0)
+    bearing, radius = rng.uniform(-np.pi, np.pi, 4000), rng.uniform(0.01, 0.1, 4000)
+    ring = np.column_stack([radius * np.cos(bearing), radius * np.sin(bearing), np.full(4000, 0.03)])
+    b2, r2 = rng.uniform(-0.17, 0.17, 500), rng.uniform(0.01, 0.15, 500)
+    strip = np.column_stack([r2 * np.cos(b2), r2 * np.sin(b2), np.full(500, 0.05)])
+    midrib = np.array([[0.01, 0.0, 0.05], [0.15, 0.0, 0.05]])
+    seg = segmentation.Segmentation(
+        points=np.vstack([ring, strip]), kept=np.ones(4500, bool), stem_label=np.full(4500, -1),
+        leaf_label=np.r_[np.zeros(4000, np.int64), np.ones(500, np.int64)], stems=(),
+        stem_tops_m=np.zeros((0, 3)), leaf_midribs=(midrib[:, [1, 0, 2]], midrib), scale=None,
+        min_leaf_length_m=0.01, link_m=0.004)
+    (found,) = traits.encircling_leaves(seg)
+    assert found[0] == 0 and found[1] > 355
+    # Half the ring is a sector of 180 degrees: not a ring.
+    half = bearing > 0
+    seg = dataclasses.replace(seg, points=np.vstack([ring[half], strip]), kept=np.ones(half.sum() + 500, bool),
+                              stem_label=np.full(half.sum() + 500, -1),
+                              leaf_label=np.r_[np.zeros(half.sum(), np.int64), np.ones(500, np.int64)])
+    assert traits.encircling_leaves(seg) == []

@@ -57,7 +57,7 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
     "TraitSettings", "compare_traits", "connected_components", "convex_hull_volume",
-    "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width", "leaf_noise_width", "plant_height",
+    "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width", "leaf_noise_width", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
     "traits_from_mesh", "traits_from_truth",
 ]
@@ -804,6 +804,51 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     return length, float(np.percentile(widths[outer_nodes], 90)), area, incl, noise_width
 
 
+# A leaf spans a sector round the stem it grows from: the outer half of every leaf found
+# in the ideal and realistic scans of tests/test_traits_procedural.py spans 153 deg or
+# less round its stem (a wheat leaf arching over its tiller), and clusters of 2-6 merged
+# leaves 185 deg or less; the one cluster of a realistic rosette's leaves spans 359 deg.
+ENCIRCLING_DEG = 270.0
+
+
+def encircling_leaves(seg: "segmentation.Segmentation") -> list[tuple[int, float]]:
+    """The found leaves that surround their stem: several leaves merged into one.
+
+    For each leaf, the points of its outer half (farther from the stem's axis than half
+    its 95th-percentile reach) and the largest gap between their bearings round that
+    axis: the span is 360 deg minus the gap. The axis is the found stem nearest the
+    leaf's junction, or the cloud's median (x, y) with no stem. A leaf spanning more than
+    ``ENCIRCLING_DEG`` is no single leaf: a ring of leaves (a rosette whose leaves the
+    noise blurred together; the leaf count is then a lower bound) or a ring round the
+    stem that is no leaf (the seed rig maize's mesh carries its turntable disk, and its
+    realistic scan finds one 5-60 mm above the disk top, 9 cm in radius: the disk's
+    top lifted by the range noise).
+
+    Returns:
+        (leaf index, span in degrees) of each such leaf.
+    """
+    pts = seg.points
+    stems_xy = np.array([st.center_xy_m for st in seg.stems], dtype=np.float64).reshape(-1, 2)
+    fallback = np.median(pts[:, :2], axis=0)
+    out = []
+    for i, midrib in enumerate(seg.leaf_midribs):
+        q = pts[seg.leaf_label == i, :2]
+        if len(q) < 5:
+            continue
+        axis = (stems_xy[np.argmin(np.linalg.norm(stems_xy - midrib[0, :2], axis=1))] if len(stems_xy)
+                else fallback)
+        d = q - axis
+        r = np.hypot(d[:, 0], d[:, 1])
+        outer = d[r > 0.5 * np.percentile(r, 95)]
+        if len(outer) < 5:
+            continue
+        bearing = np.sort(np.degrees(np.arctan2(outer[:, 1], outer[:, 0])))
+        span = 360.0 - float(np.diff(np.r_[bearing, bearing[0] + 360.0]).max())
+        if span > ENCIRCLING_DEG:
+            out.append((i, span))
+    return out
+
+
 def _above_mask(pts: np.ndarray, s: TraitSettings) -> np.ndarray:
     """The points traits read: those at or above ``base_z + ground_clearance``."""
     return pts[:, 2] >= s.base_z + s.ground_clearance
@@ -863,7 +908,9 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       column is walked up through the leaves round the axis).
     - leaves: one per skeleton tip branch that is a sampled surface (a branch with
       fewer points than spacings along it is a trail of mixed pixels, strays or a
-      filament such as a tassel branch: not counted, with a note); per leaf length,
+      filament such as a tassel branch: not counted, with a note; a leaf that
+      surrounds its stem is no single leaf, :func:`encircling_leaves`, said in a
+      note); per leaf length,
       width, area and
       inclination (:func:`_leaf_measures`); ``leaf_area_m2`` their sum (one side).
       With no branch long enough to be a leaf: count 0, area, length and width
@@ -948,6 +995,12 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                      "a leaf not counted as leaves: each holds fewer points than there are point spacings "
                      "along it, a trail rather than a sampled surface (mixed pixels strung behind a leaf's "
                      "edge, stray points, or a filament thinner than the spacing, such as a tassel branch)")
+    for i, span in encircling_leaves(seg):
+        axis = "its stem" if seg.stems else "the plant's centre"
+        notes.append(f"leaf {i} surrounds {axis} (its outer half spans {span:.0f} deg round it; one leaf "
+                     "spans a sector): it is no single leaf but leaves merged into a ring (the leaf count is "
+                     "then a lower bound) or a ring that is no leaf (a pot's rim, the soil, a disk under the "
+                     "plant); its length, width and area describe the ring")
     unresolved = [lf for lf in leaves if lf.width_resolved is False]
     if unresolved:
         share = sum(lf.area_m2 for lf in unresolved) / max(sum(lf.area_m2 for lf in leaves), 1e-300)
