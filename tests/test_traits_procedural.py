@@ -15,7 +15,8 @@ ideal rosette leaf area
 leaves, a cup, stay merged); realistic
 wheat area (+245 %: one stem of four found, its 4 mm hidden in a noisy column 5 cm wide,
 the other tillers read as wide leaves) and realistic rosettes (one leaf each, area
--60 % / -79 %, the 12-leaf height +5.3 %); the dicot's realistic leaf count (13 for 24:
+-60 % / -79 %, the 12-leaf height +5.3 %; a note says that one leaf is a ring of merged
+leaves, tested below); the dicot's realistic leaf count (13 for 24:
 the leaflets of a leaf merge).
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
 

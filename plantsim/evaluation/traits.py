@@ -57,7 +57,8 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
     "TraitSettings", "compare_traits", "connected_components", "convex_hull_volume",
-    "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width", "leaf_noise_width", "plant_height",
+    "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width",
+    "leaf_noise_width", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
     "traits_from_mesh", "traits_from_truth",
 ]
@@ -812,7 +813,7 @@ ENCIRCLING_DEG = 270.0
 
 
 def encircling_leaves(seg: "segmentation.Segmentation") -> list[tuple[int, float]]:
-    """The found leaves that surround their stem: several leaves merged into one.
+    """The found leaves that surround their stem, which no single leaf does.
 
     For each leaf, the points of its outer half (farther from the stem's axis than half
     its 95th-percentile reach) and the largest gap between their bearings round that
@@ -910,9 +911,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       fewer points than spacings along it is a trail of mixed pixels, strays or a
       filament such as a tassel branch: not counted, with a note; a leaf that
       surrounds its stem is no single leaf, :func:`encircling_leaves`, said in a
-      note); per leaf length,
-      width, area and
-      inclination (:func:`_leaf_measures`); ``leaf_area_m2`` their sum (one side).
+      note); per leaf length, width, area and inclination (:func:`_leaf_measures`);
+      ``leaf_area_m2`` their sum (one side).
       With no branch long enough to be a leaf: count 0, area, length and width
       NaN (not measured, never 0) and a note naming the length a branch needed
       (``Segmentation.min_leaf_length_m``).
