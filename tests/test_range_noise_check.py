@@ -84,7 +84,11 @@ def test_which_noise_a_scan_had_follows_what_its_parts_simulated():
     assert np.all(sigma == 0) and why == "ideal sensor: no range noise"
     quiet = {"lidar": {"sensor": "realistic", "effects": {"range_noise": False}}}
     sigma, why = range_noise_sigma_m(cloud, quiet, lidar, SensorModel(range_noise=False))
-    assert np.all(sigma == 0) and "range noise off" in why
+    # What is left is the rounding to the 1 mm resolution: uniform over a step, 1 mm / sqrt(12).
+    np.testing.assert_allclose(sigma, 0.001 / np.sqrt(12.0), rtol=1e-12)
+    assert "range noise off" in why and "rounding to 1 mm only (0.29 mm)" in why
+    sigma, why = range_noise_sigma_m(cloud, quiet, lidar, SensorModel(range_noise=False, quantise=False))
+    assert np.all(sigma == 0) and why == "realistic sensor with its range noise off: no range noise"
     assert range_noise_sigma_m(cloud, {**realistic, "range_filter": {}}, lidar, model)[0] is None
     assert range_noise_sigma_m(cloud, {}, lidar, model)[0] is None
     assert range_noise_sigma_m(cloud, realistic, lidar, None) == (

@@ -154,7 +154,9 @@ def range_noise_sigma_m(cloud: Any, simulated: Mapping[str, Any], lidar: Any, mo
         from each point's intensity". A simulated sensor's is read back from each
         point's intensity (:func:`plantsim.sensor.model.range_sigma_at_least`); a real
         sensor's, which gives no intensity, is its preset's at a white target head-on:
-        a lower bound, so a width it flags is unresolved for certain.
+        a lower bound, so a width it flags is unresolved for certain. A simulated sensor
+        with its range noise off still rounds its ranges to its resolution: that error,
+        uniform over one step, is ``resolution / sqrt(12)`` (0.29 mm for 1 mm).
     """
     from plantsim.sensor.model import range_sigma_at_least
 
@@ -173,6 +175,11 @@ def range_noise_sigma_m(cloud: Any, simulated: Mapping[str, Any], lidar: Any, mo
     if model is None:
         return None, "not checked: the scan does not give its sensor model"
     if not model.range_noise:
+        if model.quantise and lidar.range_resolution_m > 0:
+            # Rounding to the resolution is an error uniform over one step: sigma = step / sqrt(12).
+            sigma = lidar.range_resolution_m / math.sqrt(12.0)
+            return (np.full(n, sigma), f"realistic sensor with its range noise off: its ranges' rounding to "
+                    f"{1e3 * lidar.range_resolution_m:.3g} mm only ({1e3 * sigma:.2g} mm)")
         return np.zeros(n), "realistic sensor with its range noise off: no range noise"
     if cloud.intensity is None or not model.intensity:
         return (range_sigma_at_least(cloud.range_m, lidar),

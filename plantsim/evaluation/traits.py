@@ -963,8 +963,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     if top_min_points != top_voxel_min_points(seg.scale):
         notes.append(f"height: the top voxel needed {top_min_points} points, for the sensor's range noise "
                      f"({1e3 * height_scale.noise_m:.2g} mm), not {top_voxel_min_points(seg.scale)} for the "
-                     f"noise the cloud shows a plane fit ({1e3 * seg.scale.noise_m:.2g} mm: thin organs "
-                     "crossing within its reach, which the sensor cannot have made)")
+                     f"noise the cloud shows a plane fit ({1e3 * seg.scale.noise_m:.2g} mm: structure the fit "
+                     "reads as noise, such as thin organs crossing within its reach or mixed pixels)")
     height = robust_height(above, base_z=s.base_z, scale=seg.scale, min_points=top_min_points)
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points,
