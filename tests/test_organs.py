@@ -448,7 +448,7 @@ def test_a_found_leaf_that_surrounds_the_axis_is_said_to_be_a_ring_of_leaves():
         points=np.vstack([ring, strip]), kept=np.ones(4500, bool), stem_label=np.full(4500, -1),
         leaf_label=np.r_[np.zeros(4000, np.int64), np.ones(500, np.int64)], stems=(),
         stem_tops_m=np.zeros((0, 3)), leaf_midribs=(midrib[:, [1, 0, 2]], midrib), scale=None,
-        min_leaf_length_m=0.01, link_m=0.004)
+        min_leaf_length_m=0.01, link_m=0.004, sparse_branches=0)
     (found,) = traits.encircling_leaves(seg)
     assert found[0] == 0 and found[1] > 355
     # Half the ring is a sector of 180 degrees: not a ring.

@@ -700,7 +700,7 @@ class Segmentation:
     scale: CloudScale
     min_leaf_length_m: float
     link_m: float
-    sparse_branches: int = 0
+    sparse_branches: int
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:

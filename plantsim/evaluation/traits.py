@@ -959,10 +959,10 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         # the top voxel asks for the points of the noise the scan really has.
         sensor_noise_m = float(np.median(np.linalg.norm(noise_above, axis=1)))
         height_scale = dataclasses.replace(seg.scale, noise_m=min(seg.scale.noise_m, sensor_noise_m))
-    top_min_points = top_voxel_min_points(height_scale)
-    if top_min_points != top_voxel_min_points(seg.scale):
+    top_min_points, apparent_min_points = top_voxel_min_points(height_scale), top_voxel_min_points(seg.scale)
+    if top_min_points != apparent_min_points:
         notes.append(f"height: the top voxel needed {top_min_points} points, for the sensor's range noise "
-                     f"({1e3 * height_scale.noise_m:.2g} mm), not {top_voxel_min_points(seg.scale)} for the "
+                     f"({1e3 * height_scale.noise_m:.2g} mm), not {apparent_min_points} for the "
                      f"noise the cloud shows a plane fit ({1e3 * seg.scale.noise_m:.2g} mm: structure the fit "
                      "reads as noise, such as thin organs crossing within its reach or mixed pixels)")
     height = robust_height(above, base_z=s.base_z, scale=seg.scale, min_points=top_min_points)
