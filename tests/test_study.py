@@ -113,6 +113,43 @@ def test_sweep_validation_names_the_problem():
         study.run_study(study.Sweep(plants=("maize",)), max_workers=0)
 
 
+def test_range_noise_scale_scales_the_presets_noise_and_refuses_what_would_ignore_it():
+    sweep = study.Sweep(plants=("wheat",), grid=(("range_noise_scale", (0.25,)),),
+                        base={"lidar": {"range_sigma_m": 0.02}})
+    (run,) = sweep.runs()
+    lidar = config_from_dict(sweep.config_data(run)).lidar
+    # Both parts of sigma = hypot(floor, rel / sqrt(P)) scale, from the base's own values.
+    assert lidar.range_sigma_m == pytest.approx(0.005) and lidar.range_sigma_rel == pytest.approx(0.0025)
+    with pytest.raises(ValueError, match=r"range_noise_scale must be a finite number > 0, got 0.0; for no range "
+                                         r"noise set \[sensor_model\] range_noise = false"):
+        study.Sweep(plants=("wheat",), grid=(("range_noise_scale", (1.0, 0.0)),))
+    with pytest.raises(ValueError, match=r"range_noise_scale scales the range noise, which the base configuration "
+                                         r"turns off"):
+        study.Sweep(plants=("wheat",), grid=(("range_noise_scale", (0.5,)),),
+                    base={"sensor_model": {"range_noise": False}})
+    # Every run ideal: a sensor-only setting would be blank in all of them.
+    with pytest.raises(ValueError, match=r"footprint_rings, range_noise_scale change the realistic sensor only, "
+                                         r"and every run is ideal"):
+        study.Sweep(plants=("wheat",), grid=(("footprint_rings", (0, 1)), ("range_noise_scale", (0.5,))),
+                    base={"ideal": True})
+    with pytest.raises(ValueError, match=r"footprint_rings changes the realistic sensor only"):
+        study.Sweep(plants=("wheat",), grid=(("footprint_rings", (0,)), ("ideal", (True,))))
+    study.Sweep(plants=("wheat",), grid=(("footprint_rings", (0,)), ("ideal", (True, False))), base={"ideal": True})
+    # A bad value of any setting fails when the sweep is made, before any run.
+    with pytest.raises(ValueError, match=r"n_beams must be at least 2"):
+        study.Sweep(plants=("wheat",), grid=(("n_beams", (100, 1)),))
+
+
+def test_a_quarter_of_the_range_noise_scatters_the_points_a_quarter_as_far(stalk):
+    sweep = study.Sweep(plants=(str(stalk),), grid=(("step_deg", (45.0,)), ("range_noise_scale", (1.0, 0.25))),
+                        evaluation=study.EvaluationOptions(n_surface_samples=2000))
+    rows = {r["range_noise_scale"]: r for r in study.run_study(sweep, max_workers=1)}
+    assert rows[1.0]["error"] == rows[0.25]["error"] == ""
+    # The box's faces are seen head-on or nearly: the points' distance to the mesh is the
+    # noise's; its RMS scales with the noise (the 1 mm rounding aside).
+    assert rows[0.25]["rms_m"] / rows[1.0]["rms_m"] == pytest.approx(0.25, abs=0.05)
+
+
 def test_sweep_is_frozen_and_its_base_read_only():
     base = {"scan": {"sweep_deg": 90.0}}
     sweep = study.Sweep(plants=["maize"], base=base)

@@ -5,6 +5,7 @@
     plantsim study --plant maize --step-deg 4 2 1 0.5 0.25 --ideal-and-realistic \\
         -o docs/error_vs_runtime_maize.csv
     plantsim study --plant maize --plant wheat --step-deg 1 --footprint-rings 0 1 2
+    plantsim study --plant maize --range-noise-scale 1 0.5 0.25 0.1   # traits against sensor noise
     plantsim study --plant maize --mode continuous --rpm 0.5 1 2
     plantsim study --plant maize --mode step continuous --step-deg 2 1 --rpm 1 --ideal-and-realistic
 """
@@ -25,8 +26,8 @@ time, every metric) and a PNG of error against run time with the Pareto front ma
 Runs go in parallel, one process per core, each casting on one thread.
 
 Settings given with several values are swept; the others keep the defaults of
-`plantsim scan` (or of --config). Sensor-only settings (--footprint-rings) do not
-apply to ideal runs, which are not repeated for them."""
+`plantsim scan` (or of --config). Sensor-only settings (--footprint-rings,
+--range-noise-scale) do not apply to ideal runs, which are not repeated for them."""
 
 
 def _study_overrides(args: argparse.Namespace) -> dict:
@@ -59,7 +60,8 @@ def cmd_study(args: argparse.Namespace) -> int:
     base = merge(load_toml(args.config) if args.config else {}, _study_overrides(args))
     grid = [(name, tuple(values)) for name, values in (
         ("mode", args.mode if args.mode and len(args.mode) > 1 else None), ("step_deg", args.step_deg), ("n_beams", args.n_beams),
-        ("footprint_rings", args.footprint_rings), ("timestep_s", args.timestep_s),
+        ("footprint_rings", args.footprint_rings), ("range_noise_scale", args.range_noise_scale),
+        ("timestep_s", args.timestep_s),
         ("rpm", args.rpm), ("seed", args.seed),
         ("ideal", (True, False) if args.ideal_and_realistic else None)) if values]
     sweep = Sweep(plants=tuple(args.plant or ["maize"]), grid=tuple(grid), base=base,
@@ -118,6 +120,9 @@ def add_study_command(subparsers: argparse._SubParsersAction) -> argparse.Argume
                        help="beams per line over the sensor's field of view")
     swept.add_argument("--footprint-rings", type=int, nargs="+",
                        help="footprint sub-ray rings (0: 1 ray, 1: 7, 2: 19); realistic runs only")
+    swept.add_argument("--range-noise-scale", type=float, nargs="+",
+                       help="the preset's random range noise times each value (0.25: four times quieter); "
+                            "realistic runs only")
     swept.add_argument("--timestep-s", type=float, nargs="+",
                        help="servo physics timesteps, s (with --mode continuous or --physics dynamic)")
     swept.add_argument("--rpm", type=float, nargs="+", help="turntable speeds, rpm (with --mode continuous)")

@@ -57,6 +57,19 @@ def _n_beams(value: int, base: Mapping[str, Any]) -> dict:
                       "steps_per_rev": None, "first_step": 0}}
 
 
+def _range_noise_scale(value: float, base: Mapping[str, Any]) -> dict:
+    """The preset's random range noise times ``value``: its floor and its power-law part
+    both, so every return's standard deviation scales by ``value`` (a better or worse
+    sensor of the same kind)."""
+    k = float(value)
+    if not math.isfinite(k) or k <= 0:
+        raise ValueError(f"range_noise_scale must be a finite number > 0, got {value!r}; for no range noise "
+                         "set [sensor_model] range_noise = false in the base configuration")
+    lidar = dict(base.get("lidar", {}))
+    spec = lidar_preset(lidar.pop("preset", "urg-04lx-ug01")).replace(**lidar)
+    return {"lidar": {"range_sigma_m": k * spec.range_sigma_m, "range_sigma_rel": k * spec.range_sigma_rel}}
+
+
 @dataclasses.dataclass(frozen=True)
 class Setting:
     """A setting a sweep can vary.
@@ -89,6 +102,9 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
     Setting("n_beams", "beams per scan line over the preset's field of view", _n_beams),
     Setting("footprint_rings", "rings of sub-rays across a beam's footprint (0: 1 ray, 1: 7, 2: 19)",
             _at("sensor_model", "footprint_rings"), sensor_only=True),
+    Setting("range_noise_scale", "the LiDAR preset's random range noise times this (0.25: a sensor four "
+            "times quieter; the standard deviation of every return scales by it)", _range_noise_scale,
+            sensor_only=True),
     Setting("timestep_s", "physics timestep of the turntable's servo, seconds (dynamic scans)",
             _at("turntable", "timestep_s")),
     Setting("rpm", "turntable speed of a continuous scan, revolutions per minute",
@@ -142,6 +158,19 @@ class Sweep:
                 raise ValueError(f"setting {name!r} has no values to try")
         if len(set(names)) != len(names):
             raise ValueError(f"grid names a setting twice: {names}")
+        for name, values in self.grid:  # a bad value fails here, not after an hour of runs
+            for value in values:
+                SETTINGS[name].overrides(value, self.base)
+        ideals = {bool(v) for v in dict(self.grid).get("ideal", (self.base.get("ideal", False),))}
+        sensor_only = [name for name in names if SETTINGS[name].sensor_only]
+        if sensor_only and ideals == {True}:
+            raise ValueError(f"{', '.join(sensor_only)} change{'s' if len(sensor_only) == 1 else ''} the realistic "
+                             "sensor only, and every run is ideal; add realistic runs "
+                             "(plantsim study --ideal-and-realistic, or ideal = false) or drop "
+                             f"{'it' if len(sensor_only) == 1 else 'them'}")
+        if "range_noise_scale" in names and self.base.get("sensor_model", {}).get("range_noise") is False:
+            raise ValueError("range_noise_scale scales the range noise, which the base configuration turns off "
+                             "([sensor_model] range_noise = false); drop one of them")
         turntable = self.base.get("turntable", {})
         modes = set(dict(self.grid).get("mode", (turntable.get("mode", "step"),)))
         if "rpm" in names and "continuous" not in modes:
