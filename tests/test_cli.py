@@ -100,6 +100,7 @@ def test_a_sidecar_as_config_runs_the_same_scan_again(tmp_path, small_mesh, caps
 
 def test_recorded_settings_give_back_the_recorded_config():
     from plantsim.scan.config import config_from_dict, recorded_settings
+    from plantsim.scan.plan import plan_scan
 
     cases = [
         {},
@@ -118,6 +119,12 @@ def test_recorded_settings_give_back_the_recorded_config():
         assert json.loads(json.dumps(config_from_dict(recorded_settings(recorded)).to_dict())) == recorded
     assert recorded_settings(json.loads(json.dumps(config_from_dict({}).to_dict()))) == {}  # defaults only: none
     assert recorded_settings(json.loads(json.dumps(config_from_dict(cases[1]).to_dict()))) == cases[1]
+    # Another preset is recorded as that preset and what differs from it: its own noise is no
+    # setting the user gave, so the plan does not refuse it with the noise off.
+    quiet_utm = {"lidar": {"preset": "utm-30lx", "range_max_m": 20.0}, "sensor_model": {"range_noise": False}}
+    recorded = json.loads(json.dumps(config_from_dict(quiet_utm).to_dict()))
+    assert recorded_settings(recorded) == quiet_utm
+    plan_scan(config_from_dict(recorded_settings(recorded)))
 
 
 @pytest.mark.parametrize("text, words", [("{}", "not a plantsim sidecar"), ("  {\"a\": 1}", "not a plantsim sidecar"),

@@ -22,7 +22,8 @@ from plantsim.scan.pipeline import run_scan, write_result
 from plantsim.scan.plan import plan_scan
 from plantsim.scan.raw import BeamGrid, RawScan
 from plantsim.scan.schedule import StepScan
-from plantsim.sensor.spec import URG_04LX_UG01, BeamStatus
+from plantsim.sensor.model import SensorModel
+from plantsim.sensor.spec import PRESETS, URG_04LX_UG01, BeamStatus
 from plantsim.transforms import T_from_translation_quat_xyzw, make_T, rot_z, translation_quat_xyzw
 from plantsim.turntable.dynamics import JitterConfig, TurntableDynamics
 from plantsim.turntable.encoder import EncoderConfig
@@ -140,6 +141,18 @@ REFUSED = [
     ({"sensor": "ideal", "lidar": {"range_sigma_m": 0.01}}, False,
      r"\[lidar\] range_sigma_m is set but the sensor is ideal"),
     ({"ideal": True, "sensor": "realistic"}, False, "ideal = true makes everything perfect"),
+    ({"sensor_model": {"range_noise": False}, "lidar": {"range_sigma_m": 0.005}}, False,
+     r"\[lidar\] range_sigma_m is set but \[sensor_model\] range_noise is false, which turns off what uses it: "
+     r"remove it, or set range_noise = true"),
+    ({"sensor_model": {"systematic_error": False, "power_on_age_s": 10.0}}, False,
+     r"\[sensor_model\] power_on_age_s is set but \[sensor_model\] systematic_error is false"),
+    ({"sensor_model": {"quantise": False}, "lidar": {"range_resolution_m": 0.002}}, False,
+     r"\[lidar\] range_resolution_m is set but \[sensor_model\] quantise is false"),
+    ({"sensor_model": {"dropouts": False, "range_noise": False}, "lidar": {"detection_range_white_m": 3.0}}, False,
+     r"detection_range_white_m is set but \[sensor_model\] dropouts and range_noise are false.*"
+     r"set dropouts = true and range_noise = true"),
+    ({"sensor_model": {"intensity": False, "saturation_range_m": 0.2}}, False,
+     r"\[sensor_model\] saturation_range_m is set but \[sensor_model\] intensity is false"),
     ({"turntable": {"physics": "kinematic", "jitter": {"backlash_deg": 0.5}}}, False,
      r"\[turntable.jitter\] backlash_deg needs the servo's physics, but physics = \"kinematic\""),
     ({"ideal": True, "turntable": {"jitter": {"torque_noise_nm": 0.01}}}, False,
@@ -163,6 +176,19 @@ REFUSED = [
 def test_settings_the_parts_would_not_use_are_refused(data, hardware, message):
     with pytest.raises(ConfigError, match=message):
         plan_scan(config_from_dict(data), hardware_turntable=hardware)
+
+
+def test_a_sensor_setting_is_refused_only_when_every_effect_using_it_is_off():
+    # The noise law still reads detection_range_white_m with the dropouts off.
+    plan_scan(config_from_dict({"sensor_model": {"dropouts": False}, "lidar": {"detection_range_white_m": 3.0}}))
+    # A preset brings its own noise: with the noise off it is not a setting the user gave.
+    plan_scan(config_from_dict({"sensor_model": {"range_noise": False}, "lidar": {"preset": "utm-30lx"}}))
+    plan_scan(RunConfig(sensor_model=SensorModel(range_noise=False), lidar=PRESETS["utm-30lx"]))
+    # Built in Python: a value other than its preset's counts as given.
+    quiet = RunConfig(sensor_model=SensorModel(range_noise=False),
+                      lidar=PRESETS["urg-04lx-ug01"].replace(range_sigma_m=0.005))
+    with pytest.raises(ConfigError, match=r"\[lidar\] range_sigma_m is set but \[sensor_model\] range_noise"):
+        plan_scan(quiet)
 
 
 def test_a_setting_given_at_its_default_value_still_counts_as_given():

@@ -324,8 +324,20 @@ def recorded_settings(recorded: dict[str, Any]) -> dict[str, Any]:
         raise ConfigError(f"a recorded configuration is a JSON object, got {type(recorded).__name__}")
     import json
 
-    defaults = json.loads(json.dumps(RunConfig().to_dict()))  # as a sidecar holds them: lists, not tuples
-    return differing(layout(recorded), layout(defaults))
+    def as_json(value: Any) -> Any:
+        return json.loads(json.dumps(value))  # as a sidecar holds it: lists, not tuples
+
+    defaults = as_json(RunConfig().to_dict())
+    settings = layout(recorded)
+    out = differing(settings, layout(defaults))
+    # Another preset's LiDAR is that preset and what differs from it: its own noise, resolution
+    # and the rest are then no settings the user gave, which the plan would refuse when their
+    # effect is off (a UTM-30LX scanned with [sensor_model] range_noise = false).
+    name = settings["lidar"].get("name")
+    if name in PRESETS and name != defaults["lidar"]["name"]:
+        lidar = differing(settings["lidar"], as_json(dataclasses.asdict(PRESETS[name])))
+        out["lidar"] = {"preset": name, **lidar}
+    return out
 
 
 def load_settings(path: str | os.PathLike) -> tuple[dict[str, Any], Path | None]:

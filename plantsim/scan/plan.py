@@ -26,6 +26,22 @@ REALISTIC_LIDAR_FIELDS = ("beam_divergence_rad", "beam_exit_diameter_m", "range_
                           "range_sigma_m", "range_sigma_rel", "range_sigma_incidence_gain",
                           "detection_range_white_m", "edge_range_spread_m", "noise_law", "range_bias_m",
                           "range_bias_rel", "range_bias_dark_m", "warmup_drift_m", "warmup_time_constant_s")
+# Settings of the realistic sensor that only some of its effects use ([sensor_model]
+# switches; plantsim.sensor.model.apply_sensor): given with all of those effects off, they
+# would change nothing. detection_range_white_m is the dropouts' threshold and also the
+# weakest power the noise law admits (sensor.model.weakest_power).
+EFFECT_FIELDS = {
+    **{f"lidar.{f}": ("range_noise",) for f in ("range_sigma_m", "range_sigma_rel", "range_sigma_incidence_gain",
+                                               "noise_law")},
+    **{f"lidar.{f}": ("systematic_error",) for f in ("range_bias_m", "range_bias_rel", "range_bias_dark_m",
+                                                    "warmup_drift_m", "warmup_time_constant_s")},
+    **{f"sensor_model.{f}": ("systematic_error",) for f in ("range_bias_plant_m", "range_bias_turntable_m",
+                                                           "range_bias_rig_m", "power_on_age_s")},
+    "lidar.range_resolution_m": ("quantise",),
+    "lidar.edge_range_spread_m": ("dropouts",),
+    "lidar.detection_range_white_m": ("dropouts", "range_noise"),
+    "sensor_model.saturation_range_m": ("intensity",),
+}
 # [turntable] settings that only the servo's physics uses.
 PHYSICS_SCALARS = tuple(f.name for f in dataclasses.fields(TurntableDynamics)
                         if f.name not in ("servo", "jitter"))
@@ -130,6 +146,31 @@ def _check_range_filter(config: RunConfig, *, real_lidar: bool) -> None:
                           "ranges are exact: remove --range-filter, or use --sensor realistic")
 
 
+def _set_by_user(config: RunConfig, path: str) -> bool:
+    """Whether a [lidar] or [sensor_model] field was set, not merely taken from its preset
+    (a TOML or command-line key; in Python, a value other than the preset's or the default's)."""
+    if config.explicit:
+        return path in config.explicit
+    from plantsim.sensor.model import SensorModel
+    from plantsim.sensor.spec import PRESETS
+
+    section, field = path.split(".")
+    reference = SensorModel() if section == "sensor_model" else PRESETS.get(config.lidar.name)
+    return reference is not None and getattr(getattr(config, section), field) != getattr(reference, field)
+
+
+def _check_sensor_effects(config: RunConfig) -> None:
+    """Refuses a realistic sensor's setting whose effects are all switched off."""
+    model = config.sensor_model
+    for path, effects in EFFECT_FIELDS.items():
+        off = [e for e in effects if not getattr(model, e)]
+        if len(off) == len(effects) and _set_by_user(config, path):
+            switches = " and ".join(off)
+            raise ConfigError(f"{_key_name(path)} is set but [sensor_model] {switches} "
+                              f"{'is' if len(off) == 1 else 'are'} false, which turns off what uses it: remove "
+                              f"it, or set {' and '.join(f'{e} = true' for e in off)}")
+
+
 def plan_scan(config: RunConfig, *, hardware_turntable: bool = False, real_lidar: bool = False) -> ScanPlan:
     """Decides the parts of a scan, refusing settings they would not use.
 
@@ -163,6 +204,8 @@ def plan_scan(config: RunConfig, *, hardware_turntable: bool = False, real_lidar
             why = "--ideal" if config.ideal else "sensor = \"ideal\""
             raise ConfigError(f"{_key_name(unused[0])} is set but the sensor is ideal ({why}) and would not "
                               f"use it: remove it, or use --sensor realistic")
+    else:
+        _check_sensor_effects(config)
 
     # --- the schedule ---------------------------------------------------------
     if mode == "continuous":
