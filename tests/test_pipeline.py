@@ -150,7 +150,13 @@ REFUSED = [
      r"\[lidar\] range_resolution_m is set but \[sensor_model\] quantise is false"),
     ({"sensor_model": {"dropouts": False, "range_noise": False}, "lidar": {"detection_range_white_m": 3.0}}, False,
      r"detection_range_white_m is set but \[sensor_model\] dropouts and range_noise are false.*"
-     r"set dropouts = true and range_noise = true"),
+     r"set dropouts = true or range_noise = true"),
+    ({"sensor_model": {"footprint_rings": 0}, "lidar": {"beam_divergence_rad": 0.002}}, False,
+     r"\[lidar\] beam_divergence_rad is set but \[sensor_model\] footprint_rings = 0 \(one ray a beam\).*"
+     r"set footprint_rings = 1 or more"),
+    ({"sensor_model": {"adaptive_footprint": False, "flat_tolerance_m": 0.001}}, False,
+     r"\[sensor_model\] flat_tolerance_m is set but \[sensor_model\] footprint_rings = 0 or adaptive_footprint "
+     r"= false"),
     ({"sensor_model": {"intensity": False, "saturation_range_m": 0.2}}, False,
      r"\[sensor_model\] saturation_range_m is set but \[sensor_model\] intensity is false"),
     ({"turntable": {"physics": "kinematic", "jitter": {"backlash_deg": 0.5}}}, False,

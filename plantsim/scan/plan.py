@@ -27,21 +27,30 @@ REALISTIC_LIDAR_FIELDS = ("beam_divergence_rad", "beam_exit_diameter_m", "range_
                           "detection_range_white_m", "edge_range_spread_m", "noise_law", "range_bias_m",
                           "range_bias_rel", "range_bias_dark_m", "warmup_drift_m", "warmup_time_constant_s")
 # Settings of the realistic sensor that only some of its effects use ([sensor_model]
-# switches; plantsim.sensor.model.apply_sensor): given with all of those effects off, they
-# would change nothing. detection_range_white_m is the dropouts' threshold and also the
-# weakest power the noise law admits (sensor.model.weakest_power).
-EFFECT_FIELDS = {
-    **{f"lidar.{f}": ("range_noise",) for f in ("range_sigma_m", "range_sigma_rel", "range_sigma_incidence_gain",
-                                               "noise_law")},
-    **{f"lidar.{f}": ("systematic_error",) for f in ("range_bias_m", "range_bias_rel", "range_bias_dark_m",
-                                                    "warmup_drift_m", "warmup_time_constant_s")},
-    **{f"sensor_model.{f}": ("systematic_error",) for f in ("range_bias_plant_m", "range_bias_turntable_m",
-                                                           "range_bias_rig_m", "power_on_age_s")},
-    "lidar.range_resolution_m": ("quantise",),
-    "lidar.edge_range_spread_m": ("dropouts",),
-    "lidar.detection_range_white_m": ("dropouts", "range_noise"),
-    "sensor_model.saturation_range_m": ("intensity",),
-}
+# switches; plantsim.sensor.model.apply_sensor, plantsim.sensor.lidar): (paths, whether the
+# model uses them, what turns them off, what to change). Given while unused, they would
+# change nothing. detection_range_white_m is the dropouts' threshold and also the weakest
+# power the noise law admits (sensor.model.weakest_power); one ray a beam has no footprint
+# (its divergence and exit diameter) and nothing to adapt.
+EFFECT_RULES = (
+    (tuple(f"lidar.{f}" for f in ("range_sigma_m", "range_sigma_rel", "range_sigma_incidence_gain", "noise_law")),
+     lambda m: m.range_noise, "range_noise is false", "set range_noise = true"),
+    (tuple(f"lidar.{f}" for f in ("range_bias_m", "range_bias_rel", "range_bias_dark_m", "warmup_drift_m",
+                                  "warmup_time_constant_s"))
+     + tuple(f"sensor_model.{f}" for f in ("range_bias_plant_m", "range_bias_turntable_m", "range_bias_rig_m",
+                                           "power_on_age_s")),
+     lambda m: m.systematic_error, "systematic_error is false", "set systematic_error = true"),
+    (("lidar.range_resolution_m",), lambda m: m.quantise, "quantise is false", "set quantise = true"),
+    (("lidar.edge_range_spread_m",), lambda m: m.dropouts, "dropouts is false", "set dropouts = true"),
+    (("lidar.detection_range_white_m",), lambda m: m.dropouts or m.range_noise,
+     "dropouts and range_noise are false", "set dropouts = true or range_noise = true"),
+    (("sensor_model.saturation_range_m",), lambda m: m.intensity, "intensity is false", "set intensity = true"),
+    (("lidar.beam_divergence_rad", "lidar.beam_exit_diameter_m", "sensor_model.adaptive_footprint"),
+     lambda m: m.footprint_rings > 0, "footprint_rings = 0 (one ray a beam)", "set footprint_rings = 1 or more"),
+    (("sensor_model.flat_tolerance_m",), lambda m: m.footprint_rings > 0 and m.adaptive_footprint,
+     "footprint_rings = 0 or adaptive_footprint = false", "set footprint_rings = 1 or more and adaptive_footprint "
+     "= true"),
+)
 # [turntable] settings that only the servo's physics uses.
 PHYSICS_SCALARS = tuple(f.name for f in dataclasses.fields(TurntableDynamics)
                         if f.name not in ("servo", "jitter"))
@@ -160,15 +169,14 @@ def _set_by_user(config: RunConfig, path: str) -> bool:
 
 
 def _check_sensor_effects(config: RunConfig) -> None:
-    """Refuses a realistic sensor's setting whose effects are all switched off."""
-    model = config.sensor_model
-    for path, effects in EFFECT_FIELDS.items():
-        off = [e for e in effects if not getattr(model, e)]
-        if len(off) == len(effects) and _set_by_user(config, path):
-            switches = " and ".join(off)
-            raise ConfigError(f"{_key_name(path)} is set but [sensor_model] {switches} "
-                              f"{'is' if len(off) == 1 else 'are'} false, which turns off what uses it: remove "
-                              f"it, or set {' and '.join(f'{e} = true' for e in off)}")
+    """Refuses a realistic sensor's setting that only switched-off effects use (``EFFECT_RULES``)."""
+    for paths, used, off, fix in EFFECT_RULES:
+        if used(config.sensor_model):
+            continue
+        for path in paths:
+            if _set_by_user(config, path):
+                raise ConfigError(f"{_key_name(path)} is set but [sensor_model] {off}, which turns off what uses "
+                                  f"it: remove it, or {fix}")
 
 
 def plan_scan(config: RunConfig, *, hardware_turntable: bool = False, real_lidar: bool = False) -> ScanPlan:
