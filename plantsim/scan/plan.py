@@ -18,6 +18,8 @@ from typing import Any
 
 from plantsim.errors import ConfigError
 from plantsim.scan.config import RunConfig
+from plantsim.sensor.model import SensorModel
+from plantsim.sensor.spec import PRESETS
 from plantsim.turntable.dynamics import JitterConfig, TurntableDynamics
 from plantsim.turntable.encoder import EncoderConfig
 
@@ -160,9 +162,6 @@ def _set_by_user(config: RunConfig, path: str) -> bool:
     (a TOML or command-line key; in Python, a value other than the preset's or the default's)."""
     if config.explicit:
         return path in config.explicit
-    from plantsim.sensor.model import SensorModel
-    from plantsim.sensor.spec import PRESETS
-
     section, field = path.split(".")
     reference = SensorModel() if section == "sensor_model" else PRESETS.get(config.lidar.name)
     return reference is not None and getattr(getattr(config, section), field) != getattr(reference, field)
