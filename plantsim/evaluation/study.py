@@ -44,10 +44,15 @@ from plantsim.validation import check_bool, check_int, check_optional, require_e
 logger = logging.getLogger(__name__)
 
 
+def _base_lidar(base: Mapping[str, Any]):
+    """The LiDAR a sweep's base configuration describes: its preset with the base's overrides."""
+    lidar = dict(base.get("lidar", {}))
+    return lidar_preset(lidar.pop("preset", "urg-04lx-ug01")).replace(**lidar)
+
+
 def _n_beams(value: int, base: Mapping[str, Any]) -> dict:
     """Beams per line over the preset's unchanged field of view."""
-    lidar = dict(base.get("lidar", {}))
-    spec = lidar_preset(lidar.pop("preset", "urg-04lx-ug01")).replace(**lidar)
+    spec = _base_lidar(base)
     n = int(value)
     if n < 2:
         raise ValueError(f"n_beams must be at least 2 to span the field of view, got {value!r}")
@@ -65,8 +70,7 @@ def _range_noise_scale(value: float, base: Mapping[str, Any]) -> dict:
     if not math.isfinite(k) or k <= 0:
         raise ValueError(f"range_noise_scale must be a finite number > 0, got {value!r}; for no range noise "
                          "set [sensor_model] range_noise = false in the base configuration")
-    lidar = dict(base.get("lidar", {}))
-    spec = lidar_preset(lidar.pop("preset", "urg-04lx-ug01")).replace(**lidar)
+    spec = _base_lidar(base)
     return {"lidar": {"range_sigma_m": k * spec.range_sigma_m, "range_sigma_rel": k * spec.range_sigma_rel}}
 
 
