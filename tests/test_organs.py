@@ -80,12 +80,13 @@ def test_robust_height_keeps_a_sparse_top_the_outlier_removal_drops():
     sparser than the leaf's, and the statistical outlier removal takes them for outliers
     (a seed-rig wheat's ears read 6.9 % low that way) and it continues no plane, so the
     removal's clean-surface rescue does not keep it either. Pairs of points 0.5 mm apart
-    every 5 mm."""
+    every 5 mm, 40 mm off the axis as a tiller's ear stands (on the axis every turn's
+    beams would cross it, and it would be far denser: robust_height asks more there)."""
     rng = np.random.default_rng(3)
     leaf = np.column_stack([rng.uniform(-0.05, 0.05, 20000), np.zeros(20000), rng.uniform(0, 0.3, 20000)])
     z = np.repeat(np.arange(0.305, 0.3551, 0.005), 2)
     turn = 2.0 * z / 0.005  # a 2.5 mm helix: no plane holds its points (nor the leaf's)
-    ear = np.column_stack([0.0025 * np.cos(turn), 0.0025 * np.sin(turn), z])
+    ear = np.column_stack([0.04 + 0.0025 * np.cos(turn), 0.0025 * np.sin(turn), z])
     ear[1::2, 0] += 0.0005
     pts = np.vstack([leaf, ear])
     kept = segmentation.kept_points(pts)[0]
@@ -93,6 +94,37 @@ def test_robust_height_keeps_a_sparse_top_the_outlier_removal_drops():
     scale = segmentation.kept_points(pts)[1]
     assert traits.top_voxel_min_points(scale) == 2 and scale.voxel_m < 0.01
     assert traits.robust_height(pts) == pytest.approx(0.355, abs=scale.voxel_m)
+
+
+def turntable_disk(n, radius_m, z_m, rng):
+    """A disk sampled as a turntable scan samples it: as densely at every radius along
+    each turn's line, so its points crowd towards the axis as 1 / r."""
+    r, phi = rng.uniform(0.0, radius_m, n), rng.uniform(0.0, 2.0 * np.pi, n)
+    return np.column_stack([r * np.cos(phi), r * np.sin(phi), np.full(n, z_m)])
+
+
+def test_robust_height_asks_the_crowded_axis_for_more_points():
+    """Every turn's beams cross the axis, so stray points crowd there with the surfaces'
+    points: four strays 8 mm above a turntable-sampled disk's centre (a realistic
+    rosette's mixed pixels, each from a beam passing over its centre between a near
+    leaf's edge and a far leaf) set the top of a plain count of 4, not of the crowding's."""
+    rng = np.random.default_rng(5)
+    disk = turntable_disk(20000, 0.1, 0.07, rng)
+    strays = np.column_stack([rng.uniform(0.0005, 0.0025, (4, 2)), np.full(4, 0.078)])  # one voxel
+    pts = np.vstack([disk, strays])
+    cell = 0.006
+    cent, inv = segmentation.voxel_centroids(pts, cell)
+    crowding = traits.axis_crowding(cent, pts, cell)
+    r = np.hypot(cent[:, 0], cent[:, 1])
+    assert crowding[r < cell].min() == pytest.approx(np.median(np.hypot(pts[:, 0], pts[:, 1])) / cell)
+    assert np.all(crowding[r > 0.05] == 1.0)
+    # The disk's own voxels hold as many points at the axis as the crowding asks, and more.
+    disk_voxels = np.bincount(inv)[:len(cent)][cent[:, 2] < 0.075]
+    disk_crowding = crowding[cent[:, 2] < 0.075]
+    assert np.median(disk_voxels / disk_crowding) > 4
+    assert traits.robust_height(pts, cell=cell, min_points=4) == pytest.approx(0.07, abs=1e-9)
+    plain = segmentation.voxel_centroids(pts, cell)[0][np.bincount(inv) >= 4, 2].max()
+    assert plain == pytest.approx(0.078)  # what a count of 4 alone would read
 
 
 def test_robust_height_asks_more_points_of_a_noisy_top():
