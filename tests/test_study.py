@@ -109,6 +109,12 @@ def test_sweep_validation_names_the_problem():
         study.plant_overrides("nowhere.stl")
     with pytest.raises(ValueError, match=r"run 0 .* is not a valid configuration: .*step_deg must divide"):
         study.run_study(study.Sweep(plants=("maize",), grid=(("step_deg", (7.0,)),)))
+    # A setting the run's parts would not use is refused before any run, not as an error row.
+    with pytest.raises(ValueError, match=r"run 0 .* is not a valid configuration: \[lidar\] edge_range_spread_m is "
+                                         r"set but \[sensor_model\] dropouts is false"):
+        study.run_study(study.Sweep(plants=("maize",), grid=(("step_deg", (45.0,)),),
+                                    base={"sensor_model": {"dropouts": False}, "lidar": {"edge_range_spread_m": 0.01}}),
+                        progress=lambda *a: pytest.fail("a run started"))
     with pytest.raises(ValueError, match=r"max_workers must be a positive integer or None, got 0"):
         study.run_study(study.Sweep(plants=("maize",)), max_workers=0)
 

@@ -36,6 +36,7 @@ import numpy as np
 
 from plantsim._cores import usable_cores
 from plantsim.scan.config import config_from_dict, merge
+from plantsim.scan.plan import plan_scan
 from plantsim.evaluation.evaluate import EvaluationOptions, evaluate_scan
 from plantsim.resources import BUNDLED_PLANTS
 from plantsim.sensor.spec import lidar_preset
@@ -351,7 +352,8 @@ def run_study(sweep: Sweep, *, max_workers: int | None = None,
         traits are known, and ``error`` ("" or why the run failed).
 
     Raises:
-        ValueError: a configuration the grid makes is invalid (nothing is run).
+        ValueError: a configuration the grid makes is invalid, or sets what its run's parts
+            would not use (:func:`plantsim.scan.plan.plan_scan`); nothing is run.
     """
     if max_workers is not None and (not isinstance(max_workers, int) or max_workers < 1):
         raise ValueError(f"max_workers must be a positive integer or None, got {max_workers!r}")
@@ -364,7 +366,9 @@ def run_study(sweep: Sweep, *, max_workers: int | None = None,
         if threads_per_run is not None:
             data = merge(data, {"threads": threads_per_run})
         try:
-            config_from_dict(data)
+            # The plan too: a setting the run's parts would not use is refused now, not
+            # as an error row after the runs before it.
+            plan_scan(config_from_dict(data))
         except ValueError as exc:
             raise ValueError(f"run {i} ({run}) is not a valid configuration: {exc}") from exc
         datas.append(data)
