@@ -157,6 +157,10 @@ REFUSED = [
     ({"sensor_model": {"adaptive_footprint": False, "flat_tolerance_m": 0.001}}, False,
      r"\[sensor_model\] flat_tolerance_m is set but \[sensor_model\] footprint_rings = 0 or adaptive_footprint "
      r"= false"),
+    ({"sensor_model": {"range_noise": False, "dropouts": False, "intensity": False, "systematic_error": False,
+                       "footprint_rings": 0, "reflectance_plant": 0.3}}, False,
+     r"\[sensor_model\] reflectance_plant is set but \[sensor_model\] range_noise, dropouts, intensity and "
+     r"systematic_error are false and footprint_rings = 0.*turn one of them on"),
     ({"sensor_model": {"intensity": False, "saturation_range_m": 0.2}}, False,
      r"\[sensor_model\] saturation_range_m is set but \[sensor_model\] intensity is false"),
     ({"turntable": {"physics": "kinematic", "jitter": {"backlash_deg": 0.5}}}, False,
@@ -187,6 +191,9 @@ def test_settings_the_parts_would_not_use_are_refused(data, hardware, message):
 def test_a_sensor_setting_is_refused_only_when_every_effect_using_it_is_off():
     # The noise law still reads detection_range_white_m with the dropouts off.
     plan_scan(config_from_dict({"sensor_model": {"dropouts": False}, "lidar": {"detection_range_white_m": 3.0}}))
+    # Any one effect that reads the reflectance keeps it (here the footprint's weights).
+    plan_scan(config_from_dict({"sensor_model": {"range_noise": False, "dropouts": False, "intensity": False,
+                                                 "systematic_error": False, "reflectance_plant": 0.3}}))
     # A preset brings its own noise: with the noise off it is not a setting the user gave.
     plan_scan(config_from_dict({"sensor_model": {"range_noise": False}, "lidar": {"preset": "utm-30lx"}}))
     plan_scan(RunConfig(sensor_model=SensorModel(range_noise=False), lidar=PRESETS["utm-30lx"]))

@@ -49,6 +49,12 @@ EFFECT_RULES = (
     (("sensor_model.saturation_range_m",), lambda m: m.intensity, "intensity is false", "set intensity = true"),
     (("lidar.beam_divergence_rad", "lidar.beam_exit_diameter_m", "sensor_model.adaptive_footprint"),
      lambda m: m.footprint_rings > 0, "footprint_rings = 0 (one ray a beam)", "set footprint_rings = 1 or more"),
+    # A hit's reflectance sets its received power (the noise law, the dropouts, the
+    # intensity), the bias's reflectance walk, and a footprint's weights.
+    (tuple(f"sensor_model.reflectance_{c}" for c in ("plant", "turntable", "rig")),
+     lambda m: m.range_noise or m.dropouts or m.intensity or m.systematic_error or m.footprint_rings > 0,
+     "range_noise, dropouts, intensity and systematic_error are false and footprint_rings = 0",
+     "turn one of them on"),
     (("sensor_model.flat_tolerance_m",), lambda m: m.footprint_rings > 0 and m.adaptive_footprint,
      "footprint_rings = 0 or adaptive_footprint = false", "set footprint_rings = 1 or more and adaptive_footprint "
      "= true"),
