@@ -737,8 +737,8 @@ def axis_crowding(centres_turntable: Any, points_turntable: Any, cell: float) ->
 
     Validity: turntable scans (and clouds whose density grows towards the axis
     like theirs). A cloud sampled evenly, by a scanner that does not turn the plant,
-    asks a voxel near the axis for more points than it holds: a top there reads up
-    to a few voxels low.
+    is asked for up to ``r_median / cell`` times the points its voxels near the axis
+    hold: a top there reads low, at the highest voxel that holds that many.
 
     Args:
         centres_turntable: (m, 3) float64, metres, the voxel centres.
