@@ -21,7 +21,7 @@ from plantsim.evaluation import evaluate
 from plantsim.evaluation.evaluate import range_noise_sigma_m, range_noise_vectors, scan_range_noise
 from plantsim.evaluation.traits import extract_traits
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import make_maize, to_labelled_obj_bytes, traits_to_json
+from plantsim.plant.procedural import make_maize, make_rosette, to_labelled_obj_bytes, traits_to_json
 from plantsim.scan.config import RangeFilter, RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
@@ -135,12 +135,17 @@ def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_withou
     assert "read back from each point's intensity" in data["leaf_widths_checked_against"]
     assert data["leaves"] and all(isinstance(lf["width_resolved"], bool) for lf in data["leaves"])
     assert "leaf widths checked against: the urg-04lx-ug01's range noise" in printed
+    # What the scan said its rig could not do for the plant comes with the traits.
+    said = json.loads((tmp_path / "maize.las.json").read_text())["simulated"]["plan"]["rig_fit_warnings"]
+    assert data["scan_rig_fit_warnings"] == said
+    assert all(f"note: the scan's rig (its sidecar): {w}" in printed for w in said)
     # The same cloud without its sidecar: nothing is claimed, and the output says why.
     alone = tmp_path / "alone.las"
     shutil.copyfile(cloud, alone)
     assert main(["traits", str(alone), "-o", str(out)]) == 0
     data = json.loads(out.read_text())
     assert data["leaf_widths_checked_against"].startswith("not checked: no plantsim sidecar (alone.las.json)")
+    assert data["scan_rig_fit_warnings"] is None
     assert all(lf["width_resolved"] is None for lf in data["leaves"])
     # A sidecar of another scan (other point count) is not used.
     other = tmp_path / "other.las"
@@ -156,6 +161,35 @@ def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_withou
     assert main(["traits", str(pts), "-o", str(out)]) == 0
     assert json.loads(out.read_text())["leaf_widths_checked_against"].startswith(
         "not checked: a .pts cloud does not carry each point's range and turntable angle")
+
+
+def test_traits_of_a_rosette_scanned_edge_on_repeat_the_rigs_warning(tmp_path, capsys):
+    """A flat plant on the default rig is seen edge-on (leaf area and count read low by
+    occlusion): the traits say so, from the scan's sidecar, and so does a .pts cloud
+    (no beams to check widths with, but the same scan)."""
+    from plantsim.cli.app import main
+
+    mesh = tmp_path / "rosette.obj"
+    mesh.write_bytes(to_labelled_obj_bytes(make_rosette(seed=1, n_leaves=6)))
+    for name in ("rosette.las", "rosette.pts"):
+        cloud = tmp_path / name
+        assert main(["scan", str(mesh), "-o", str(cloud), "--step-deg", "4", "--no-pictures", "--ideal"]) == 0
+        capsys.readouterr()
+        out = tmp_path / "t.json"
+        assert main(["traits", str(cloud), "-o", str(out)]) == 0
+        printed = capsys.readouterr().out
+        data = json.loads(out.read_text())
+        (warning,) = [w for w in data["scan_rig_fit_warnings"] if "edge-on" in w]
+        assert warning.startswith("the plant is flat") and f"note: the scan's rig (its sidecar): {warning}" in printed
+        # Which points were measured is said: a .pts file carries no classes, so its
+        # turntable's points are in the cloud too.
+        counts = json.loads((tmp_path / f"{name}.json").read_text())["counts"]
+        n_file, n_plant = counts["points_written"], counts["points_written_by_class"]["plant"]
+        if name.endswith(".las"):
+            assert data["points_measured"].startswith(f"the {n_plant} of {n_file} points classed as plant")
+        else:
+            assert data["points_measured"].startswith(f"all {n_file} points: the file carries no point classes")
+        assert f"points: {data['points_measured']}" in printed
 
 
 def test_evaluate_scan_writes_the_check_and_the_notes_into_the_sidecar_object(tmp_path):

@@ -5,7 +5,9 @@ be in the turntable frame, metres, z up, the plant base at ``--base-z``. When pl
 sidecar is beside it (``CLOUD.json``, from ``plantsim scan``), the leaf widths are
 checked against the sensor's range noise along each point's beam (the rig's LiDAR pose
 and each point's turntable angle and intensity); the output says what they were checked
-against, or why not.
+against, or why not, and repeats what the scan said its rig could not do for the plant
+(``scan_rig_fit_warnings``: a flat plant's leaves seen edge-on, a top seen at grazing
+beams), which bounds what the traits can read.
 """
 
 from __future__ import annotations
@@ -38,10 +40,50 @@ def traits_dict(points_turntable, *, base_z: float = 0.0, range_noise_m=None) ->
                           range_noise_m=range_noise_m).to_dict()
 
 
-def range_noise_from_sidecar(cloud_path: Path, n_points_in_file: int, cloud):
+def points_to_measure(cloud, *, all_points: bool = False):
+    """The points whose traits are read, and a sentence saying which: the plant-class
+    points when the file classes its points (``--all-points``: every point), else every
+    point, said aloud: a file with no classes (.pts, .e57, most clouds from elsewhere)
+    holds whatever was scanned, and a turntable's or the soil's points in it would be
+    measured as plant."""
+    from plantsim.rig.scene import HitClass
+
+    n = len(cloud.points_turntable)
+    if all_points:
+        return cloud, f"all {n} points (--all-points)"
+    plant = cloud.plant_only()
+    if len(plant.points_turntable):
+        return plant, f"the {len(plant.points_turntable)} of {n} points classed as plant (--all-points: every point)"
+    if bool((cloud.hit_class == HitClass.NONE).all()):
+        return cloud, (f"all {n} points: the file carries no point classes, so any turntable, rig or soil "
+                       "points in it are measured as plant (plantsim scan's .las, .ply and .pcd keep them "
+                       "apart; else crop the cloud to the plant)")
+    return cloud, f"all {n} points: none is classed as plant"
+
+
+def read_sidecar(cloud_path: Path, n_points_in_file: int) -> tuple[dict | None, str]:
+    """The plantsim sidecar beside the cloud file, read once; (None, why not) when it is
+    missing, unreadable, or describes another cloud (another point count)."""
+    from plantsim.cloud.export import sidecar_path
+
+    side = sidecar_path(cloud_path)
+    if not side.is_file():
+        return None, f"no plantsim sidecar ({side.name}) beside the cloud says which sensor made it"
+    try:
+        meta = json.loads(side.read_text(encoding="utf-8"))
+        written = meta["counts"]["points_written"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        return None, f"{side.name} is not a plantsim scan's sidecar ({type(exc).__name__}: {exc})"
+    if written != n_points_in_file:
+        return None, f"the cloud holds {n_points_in_file} points, the scan {side.name} describes wrote {written}"
+    return meta, ""
+
+
+def range_noise_from_sidecar(cloud_path: Path, meta: dict | None, why_no_meta: str, cloud):
     """The range noise vectors of ``cloud``'s points (a selection of the file's) from the
-    plantsim sidecar beside the cloud file, and what they are; (None, why not) when the
-    sidecar is missing, unreadable, for another cloud, or says the noise is not known."""
+    scan's sidecar ``meta`` (:func:`read_sidecar`), and what they are; (None, why not)
+    when the format drops each point's beam, there is no sidecar for this cloud, or it
+    says the noise is not known."""
     from plantsim.cloud.export import INDEXED_FORMATS, LOSSY_FORMATS, sidecar_path
     from plantsim.evaluation.evaluate import range_noise_sigma_m, range_noise_vectors
     from plantsim.sensor.model import SensorModel
@@ -51,23 +93,29 @@ def range_noise_from_sidecar(cloud_path: Path, n_points_in_file: int, cloud):
     if suffix in LOSSY_FORMATS | INDEXED_FORMATS:
         return None, (f"not checked: a {suffix} cloud does not carry each point's range and turntable "
                       "angle (a .las, .ply or .pcd from plantsim scan does)")
-    side = sidecar_path(cloud_path)
-    if not side.is_file():
-        return None, f"not checked: no plantsim sidecar ({side.name}) beside the cloud says which sensor made it"
+    if meta is None:
+        return None, f"not checked: {why_no_meta}"
     try:
-        meta = json.loads(side.read_text(encoding="utf-8"))
-        written = meta["counts"]["points_written"]
         simulated = meta["simulated"]
         T_base_lidar = meta["frames"]["T_base_lidar"]
         lidar = LidarSpec(**meta["config"]["lidar"])
         model = SensorModel(**meta["config"]["sensor_model"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        return None, f"not checked: {side.name} does not give the scan's sensor and rig ({type(exc).__name__}: {exc})"
-    if written != n_points_in_file:
-        return None, (f"not checked: the cloud holds {n_points_in_file} points, the scan {side.name} "
-                      f"describes wrote {written}")
+    except (ValueError, KeyError, TypeError) as exc:
+        return None, (f"not checked: {sidecar_path(cloud_path).name} does not give the scan's sensor and rig "
+                      f"({type(exc).__name__}: {exc})")
     sigma, why = range_noise_sigma_m(cloud, simulated, lidar, model)
     return (None if sigma is None else range_noise_vectors(cloud, T_base_lidar, sigma)), why
+
+
+def rig_fit_warnings_from_sidecar(meta: dict | None) -> list[str] | None:
+    """What the scan's sidecar says its rig could not do for this plant
+    (:func:`plantsim.rig.fit.rig_fit_warnings`, recorded at scan time); None without a
+    sidecar for this cloud or when it does not say."""
+    try:
+        warnings = meta["simulated"]["plan"]["rig_fit_warnings"]
+    except (KeyError, TypeError):
+        return None
+    return [str(w) for w in warnings] if isinstance(warnings, list) else None
 
 
 def cmd_traits(args: argparse.Namespace) -> int:
@@ -78,21 +126,21 @@ def cmd_traits(args: argparse.Namespace) -> int:
         return 2
     cloud = read_cloud(args.cloud)
     n_in_file = len(cloud.points_turntable)
-    if not args.all_points and hasattr(cloud, "plant_only"):
-        try:
-            plant = cloud.plant_only()
-            if len(plant.points_turntable):
-                cloud = plant
-        except (AttributeError, ValueError):
-            pass
+    cloud, measured = points_to_measure(cloud, all_points=args.all_points)
     pts = cloud.points_turntable
-    noise, checked = range_noise_from_sidecar(args.cloud, n_in_file, cloud)
+    meta, why_no_meta = read_sidecar(args.cloud, n_in_file)
+    noise, checked = range_noise_from_sidecar(args.cloud, meta, why_no_meta, cloud)
+    rig_warnings = rig_fit_warnings_from_sidecar(meta)
     try:
         out = traits_dict(pts, base_z=args.base_z, range_noise_m=noise)
     except ValueError as exc:
         print(f"plantsim traits: {exc}", file=sys.stderr)
         return 2
+    out["points_measured"] = measured
     out["leaf_widths_checked_against"] = checked
+    # The rig's limits for this plant, said at scan time, bound what the traits can read
+    # (leaves seen edge-on read small and merged; a top seen at grazing beams reads low).
+    out["scan_rig_fit_warnings"] = rig_warnings
     text = json.dumps(out, indent=2)
     if args.output is not None:
         args.output.write_text(text + "\n", encoding="utf-8")
@@ -106,7 +154,10 @@ def cmd_traits(args: argparse.Namespace) -> int:
         print(f"height {f(out['height_m'], 1e3, ' mm')}; stems {out['stem_count']}, diameter "
               f"{bound}{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}; "
               f"leaves {out['leaf_count']}, area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
+        print(f"points: {measured}")
         for note in out["notes"]:
             print(f"note: {note}")
+        for warning in rig_warnings or ():
+            print(f"note: the scan's rig (its sidecar): {warning}")
         print(f"leaf widths checked against: {checked}")
     return 0
