@@ -20,6 +20,8 @@ the other tillers read as wide leaves) and realistic rosettes (one leaf each, ar
 leaves, tested below); the dicot's realistic leaf count (13 for 24:
 the leaflets of a leaf merge).
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
+The ideal counts and areas also move when the cloud is rounded to a LAS file's 0.01 mm grid
+(maize, wheat, 12-leaf rosette, dicot: strict xfails at the end, with the reason).
 
 Counts can meet their target with leaves split and merged, so the ideal maize and wheat
 and the realistic dicot are also matched leaf by leaf to their true leaves (IoU of points
@@ -33,6 +35,7 @@ import logging
 import numpy as np
 import pytest
 
+from plantsim.cloud.export import LAS_SCALE_M
 from plantsim.evaluation import traits
 from plantsim.evaluation.organ_match import match_procedural_leaves, procedural_leaf_labels
 from plantsim.plant.mesh import plant_from_arrays
@@ -240,3 +243,26 @@ def test_a_noisy_dicots_leaflets_are_found_apart_from_its_stem():
     # matched a true leaflet; 6 of 13 today: a floor against regressions.
     m = _leaf_match("dicot", *REALISTIC)
     assert m.true_positives >= 6, m.summary()
+
+
+# A LAS file keeps coordinates on a 0.01 mm grid. The segmentation's working resolution
+# follows the cloud's spacing estimate (a percentile), which that rounding moves by about
+# 0.3 %: every voxel and level-set boundary moves with it, up to a third of a voxel 0.1 m
+# from the axis, and a leaf splits or merges. On the ideal scans today: maize 9 -> 10
+# leaves, wheat 16 -> 17, 12-leaf rosette 11 -> 8, dicot 26 -> 23
+# (scripts/traits_stability.py also jitters the points by 1 um: the same spread).
+UNSTABLE = ("the traits move with a 0.01 mm rounding of the points: the working resolution follows the "
+            "spacing estimate, and every voxel and level-set boundary with it (scripts/traits_stability.py)")
+
+
+@pytest.mark.parametrize("name, ideal, step_deg", [
+    *[(name, *REALISTIC) for name in PLANTS], ("rosette30", *IDEAL),
+    *[pytest.param(name, *IDEAL, marks=pytest.mark.xfail(strict=True, reason=UNSTABLE))
+      for name in ("maize", "wheat", "rosette12", "dicot")]])
+def test_the_traits_of_a_scan_read_back_from_its_las_file_are_its_own(name, ideal, step_deg):
+    points, _ = _cloud(name, ideal, step_deg)
+    est, _ = _scan(name, ideal, step_deg)
+    las = traits.extract_traits(np.round(points / LAS_SCALE_M) * LAS_SCALE_M)
+    assert las.height_m == pytest.approx(est.height_m, abs=1e-3)
+    assert las.leaf_count == est.leaf_count
+    assert las.leaf_area_m2 == pytest.approx(est.leaf_area_m2, rel=0.02)
