@@ -31,16 +31,15 @@ from plantsim.evaluation import traits
 from plantsim.evaluation.organ_match import procedural_leaf_labels
 from plantsim.evaluation.segmentation import _graph, voxel_centroids
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import make_rosette
 from plantsim.rig.fit import fit_rig
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
+from traits_separability import PLANTS as TEST_PLANTS
 
-PLANTS = {
-    "rosette12": lambda: make_rosette(seed=1, n_leaves=12),
-    "rosette30": lambda: make_rosette(seed=2, n_leaves=30),
-}
+# The five plants of the trait tests (scripts/ is on the path when a script runs); here
+# the rosettes, whose leaves grow outward from the axis.
+PLANTS = {name: make for name, make in TEST_PLANTS.items() if name.startswith("rosette")}
 
 
 def true_leaf_area(points: np.ndarray, true_label: np.ndarray, n_leaves: int,

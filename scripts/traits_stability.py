@@ -23,18 +23,12 @@ from plantsim.cloud.export import LAS_SCALE_M
 from plantsim.evaluation import traits
 from plantsim.evaluation.evaluate import scan_range_noise
 from plantsim.plant.mesh import plant_from_arrays
-from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
+from traits_separability import PLANTS as TEST_PLANTS
 
-PLANTS = {
-    "maize": lambda: make_maize(seed=0),
-    "wheat": lambda: make_wheat(seed=0),
-    "rosette12": lambda: make_rosette(seed=1, n_leaves=12),
-    "rosette30": lambda: make_rosette(seed=2, n_leaves=30),
-    "dicot": lambda: make_dicot(seed=0),
-}
+PLANTS = TEST_PLANTS  # the five plants of the trait tests (scripts/ is on the path when a script runs)
 
 
 def main() -> None:
