@@ -855,6 +855,21 @@ def uniform_width(u: np.ndarray) -> float:
     return extent * (n + 1) / (0.96 * (n - 1))
 
 
+def _uniform_widths(u_sorted: np.ndarray, start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """:func:`uniform_width` of many groups at once: group ``g`` is
+    ``u_sorted[start[g]:start[g] + count[g]]``, sorted ascending, ``count[g] >= 2``.
+    Percentiles interpolated linearly between order statistics, as numpy's."""
+    def percentile(p: float) -> np.ndarray:
+        pos = p / 100.0 * (count - 1)
+        lo = np.floor(pos).astype(np.int64)
+        hi = np.minimum(lo + 1, count - 1)
+        frac = pos - lo
+        return u_sorted[start + lo] * (1.0 - frac) + u_sorted[start + hi] * frac
+
+    n = count.astype(np.float64)
+    return (percentile(98.0) - percentile(2.0)) * (n + 1) / (0.96 * (n - 1))
+
+
 def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray, *, link: float | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per midrib node: unit tangent, unit normal (NaN with under 3 points) and width;
@@ -878,45 +893,59 @@ def node_frames(leaf_pts: np.ndarray, midrib: np.ndarray, *, link: float | None 
     seg = np.diff(midrib, axis=0)
     tangent = seg / np.maximum(np.linalg.norm(seg, axis=1), 1e-12)[:, None]
     tangent = np.vstack([tangent, tangent[-1:]])
-    normal = np.full((len(midrib), 3), np.nan)
-    width = np.zeros(len(midrib))
+    m = len(midrib)
+    normal = np.full((m, 3), np.nan)
+    width = np.zeros(m)
     if len(leaf_pts) == 0:
         return tangent, normal, width, np.zeros(0, dtype=np.int64)
     _, node = cKDTree(midrib).query(leaf_pts)
+    # All nodes at once: each node's points about their centre, less their component
+    # along the tangent; the in-plane axis is the principal axis of what is left.
+    count = np.bincount(node, minlength=m)
+    centre = np.column_stack([np.bincount(node, weights=leaf_pts[:, j], minlength=m) for j in range(3)])
+    centre /= np.maximum(count, 1)[:, None]
+    q = leaf_pts - centre[node]
+    q -= np.einsum("ni,ni->n", q, tangent[node])[:, None] * tangent[node]
+    cov = np.zeros((m, 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            cov[:, a, b] = cov[:, b, a] = np.bincount(node, weights=q[:, a] * q[:, b], minlength=m)
+    axis = np.linalg.eigh(cov)[1][:, :, 2]  # eigenvector of the largest eigenvalue
+    ok = count >= 3
+    normal[ok] = np.cross(tangent[ok], axis[ok])
+    u = np.einsum("ni,ni->n", q, axis[node])
+    order = np.lexsort((u, node))
+    u_sorted, node_sorted = u[order], node[order]
+    start = np.r_[0, np.cumsum(count)[:-1]]
+    split = np.zeros(m, dtype=bool)  # cross-sections that fall apart into runs
+    if link is not None:
+        gap = (np.diff(u_sorted) > link) & (node_sorted[1:] == node_sorted[:-1])
+        split[node_sorted[1:][gap]] = True
+    plain = ok & ~split
+    width[plain] = _uniform_widths(u_sorted, start[plain], count[plain])
     sin_plane = math.sin(math.radians(25.0))
-    for i in range(len(midrib)):
-        q = leaf_pts[node == i]
-        if len(q) < 3:
-            continue
-        centre = q.mean(axis=0)
-        q = q - centre
-        q = q - np.outer(q @ tangent[i], tangent[i])
-        _, _, vt = np.linalg.svd(q, full_matrices=False)
-        u = q @ vt[0]
-        normal[i] = np.cross(tangent[i], vt[0])
-        if link is not None:
-            order = np.argsort(u)
-            run = np.empty(len(u), dtype=np.int64)
-            run[order] = np.r_[0, np.cumsum(np.diff(u[order]) > link)]
-            if run.max() > 0:
-                foot = (midrib[i] - centre) @ vt[0]
-                home = run[np.argmin(np.abs(u - foot))]
-                own = q[run == home]
-                if len(own) >= 3:
-                    axis = np.linalg.svd(own - own.mean(axis=0), full_matrices=False)[2][0]
-                    own_normal = np.cross(tangent[i], axis)
-                    own_normal /= max(float(np.linalg.norm(own_normal)), 1e-12)
-                    keep = run == home
-                    for r in range(int(run.max()) + 1):
-                        if r == home:
-                            continue
-                        other = q[run == r]
-                        off = other.mean(axis=0) - own.mean(axis=0)
-                        if abs(float(off @ own_normal)) > sin_plane * float(np.linalg.norm(off)):
-                            continue  # it lies above or below the leaf
-                        keep |= run == r
-                    u = q[keep] @ axis  # across the leaf's own run, not tilted by the other leaf
-        width[i] = uniform_width(u)
+    for i in np.flatnonzero(ok & split):
+        members = order[start[i]:start[i] + count[i]]
+        qi, ui = q[members], u[members]
+        run = np.r_[0, np.cumsum(np.diff(ui) > link)]  # ui is sorted: runs in order
+        foot = (midrib[i] - centre[i]) @ axis[i]
+        home = run[np.argmin(np.abs(ui - foot))]
+        own = qi[run == home]
+        if len(own) >= 3:
+            own_axis = np.linalg.svd(own - own.mean(axis=0), full_matrices=False)[2][0]
+            own_normal = np.cross(tangent[i], own_axis)
+            own_normal /= max(float(np.linalg.norm(own_normal)), 1e-12)
+            keep = run == home
+            for r in range(int(run.max()) + 1):
+                if r == home:
+                    continue
+                other = qi[run == r]
+                off = other.mean(axis=0) - own.mean(axis=0)
+                if abs(float(off @ own_normal)) > sin_plane * float(np.linalg.norm(off)):
+                    continue  # it lies above or below the leaf
+                keep |= run == r
+            ui = qi[keep] @ own_axis  # across the leaf's own run, not tilted by the other leaf
+        width[i] = uniform_width(ui)
     return tangent, normal, width, node
 
 
