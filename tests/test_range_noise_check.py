@@ -190,6 +190,11 @@ def test_traits_of_a_rosette_scanned_edge_on_repeat_the_rigs_warning(tmp_path, c
         else:
             assert data["points_measured"].startswith(f"all {n_file} points: the file carries no point classes")
         assert f"points: {data['points_measured']}" in printed
+        # The segmentation's own spread: what each shifted voxel grid read.
+        counts = data["leaf_counts_over_grids"]
+        assert len(counts) == 9 and data["leaf_count"] == sorted(counts)[4]
+        assert len(data["leaf_areas_over_grids_m2"]) == 9
+        assert f"over 9 shifted voxel grids: leaves {min(counts)}-{max(counts)}" in printed
 
 
 def test_evaluate_scan_writes_the_check_and_the_notes_into_the_sidecar_object(tmp_path):

@@ -84,17 +84,18 @@ def test_two_and_three_stems_give_their_centre_distances():
     pts = np.vstack([_cylinder_cloud(rng, c, 0.002, 0.4, 10_000) for c in centres])
     two = traits.extract_traits(pts[:20_000])
     assert len(two.stems) == 2
-    assert two.mean_stem_distance_m == pytest.approx(0.042, abs=1e-9)
-    assert two.stem_diameter_m == pytest.approx(0.004, rel=1e-6)
+    # Traits are measured on the LAS file's 0.01 mm grid (traits.on_file_grid).
+    assert two.mean_stem_distance_m == pytest.approx(0.042, abs=2e-5)
+    assert two.stem_diameter_m == pytest.approx(0.004, abs=2e-5)
     three = traits.extract_traits(pts)
     c = np.array(centres)
     d = {(i, j): np.linalg.norm(c[i] - c[j]) for i in range(3) for j in range(i + 1, 3)}
     assert len(three.stems) == 3 and len(three.stem_distances) == 3
-    assert three.mean_stem_distance_m == pytest.approx(np.mean(list(d.values())), abs=1e-9)
+    assert three.mean_stem_distance_m == pytest.approx(np.mean(list(d.values())), abs=2e-5)
     nearest = [min(v for k, v in d.items() if i in k) for i in range(3)]
-    assert three.mean_nearest_stem_distance_m == pytest.approx(np.mean(nearest), abs=1e-9)
+    assert three.mean_nearest_stem_distance_m == pytest.approx(np.mean(nearest), abs=2e-5)
     got = sorted(p.distance_m for p in three.stem_distances)
-    assert got == pytest.approx(sorted(d.values()), abs=1e-9)
+    assert got == pytest.approx(sorted(d.values()), abs=2e-5)
 
 
 # --------------------------------------------------------------------------
@@ -129,7 +130,7 @@ def test_a_stem_with_two_leaves_is_taken_apart():
     pts = np.vstack([stem, leaf_a, leaf_b])
     t = traits.extract_traits(pts)
     assert len(t.stems) == 1
-    assert t.stems[0].diameter_m == pytest.approx(2 * r, rel=1e-6)
+    assert t.stems[0].diameter_m == pytest.approx(2 * r, abs=2e-5)  # on the 0.01 mm grid
     assert len(t.leaves) == 2
     by_width = sorted(t.leaves, key=lambda lf: lf.width_m)
     # The level-set skeleton measures each leaf from where it leaves the stem's skeleton
@@ -221,8 +222,10 @@ def test_a_lone_scan_line_beside_a_leaf_is_not_a_leaf(seed, gap):
     line = np.column_stack([x, y, np.full_like(x, 0.10)])
     t = traits.extract_traits(np.vstack([stem, leaf_a, leaf_b, line]))
     assert t.leaf_count == 2
+    # Where the line joins leaf a it can lengthen it too: the two leaves read 0.123 to
+    # 0.145 m over the 9 shifted grids (0.124 m with the junction inside the stem).
     for length in t.leaf_lengths_m:
-        assert length == pytest.approx(0.125, rel=0.10)
+        assert length == pytest.approx(0.125, rel=0.15)
     # The line joins leaf a's cross-sections and widens them (its width reads 35-43 mm
     # for 30): that leaf's area reads up to 16 % large; the other leaf's is its own.
     clean, joined = sorted(t.leaf_areas_m2)
@@ -472,10 +475,11 @@ def test_compare_a_scan_against_the_truth():
     # height, from the voxel below, reads 1.0 mm low.
     assert c["height_m"].estimate == pytest.approx(0.5, abs=2e-3)
     assert c["height_m"].relative_error == pytest.approx(abs(c["height_m"].estimate - 0.555) / 0.555, abs=1e-12)
-    assert c["stem_diameter_m"].relative_error == pytest.approx(0.25, rel=1e-6)
-    assert c["mean_stem_distance_m"].absolute_error == pytest.approx(0.0045, abs=1e-9)
-    assert c["stem[1].center_offset_m"].absolute_error == pytest.approx(0.005, abs=1e-9)
-    assert c["stem[0].diameter_m"].relative_error == pytest.approx(0.25, rel=1e-6)
+    # The cloud is measured on the LAS file's 0.01 mm grid (traits.on_file_grid).
+    assert c["stem_diameter_m"].relative_error == pytest.approx(0.25, abs=5e-3)
+    assert c["mean_stem_distance_m"].absolute_error == pytest.approx(0.0045, abs=2e-5)
+    assert c["stem[1].center_offset_m"].absolute_error == pytest.approx(0.005, abs=2e-5)
+    assert c["stem[0].diameter_m"].relative_error == pytest.approx(0.25, abs=5e-3)
     # The counts are (estimate, truth). (The skeleton reads the two bare stems' upper
     # parts as two stem-wide "leaves": a known defect, issue 13, not pinned here.)
     assert c.n_stems == (2, 2) and c.n_leaves == (len(estimate.leaves), 2)

@@ -155,6 +155,14 @@ def cmd_traits(args: argparse.Namespace) -> int:
               f"{bound}{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}; "
               f"leaves {out['leaf_count']}, area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
         print(f"points: {measured}")
+        counts = out.get("leaf_counts_over_grids") or []
+        areas = [a for a in out.get("leaf_areas_over_grids_m2") or [] if a is not None]
+        if len(counts) > 1:
+            # The segmentation's own uncertainty: what the other voxel grids read.
+            spread = f"leaves {min(counts)}-{max(counts)}"
+            if areas:
+                spread += f", area {f(min(areas), 1e4)}-{f(max(areas), 1e4, ' cm^2')}"
+            print(f"over {len(counts)} shifted voxel grids: {spread} (the median grid's are above)")
         for note in out["notes"]:
             print(f"note: {note}")
         for warning in rig_warnings or ():

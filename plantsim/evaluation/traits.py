@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import typing
 from collections.abc import Mapping
 from typing import Any
 
@@ -58,7 +59,7 @@ __all__ = [
     "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
     "TraitSettings", "axis_crowding", "compare_traits", "connected_components", "convex_hull_volume",
     "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width",
-    "leaf_noise_width", "plant_height",
+    "leaf_noise_width", "on_file_grid", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
     "traits_from_mesh", "traits_from_truth",
 ]
@@ -94,6 +95,11 @@ class TraitSettings:
         leaf_min_points: components with fewer points are not leaves.
         leaf_bin_length: length of the bins along a leaf's midrib.
         grid_cell: cell of the projected-area occupancy grid.
+        shifted_grids: the organs are segmented on this many voxel grids and level-set
+            phases (:func:`plantsim.evaluation.segmentation.shifted_grid_offsets`); the
+            organs are those of the grid whose leaf count is the median and, of
+            those, whose leaf area is nearest their median (an odd number, so a grid
+            holds the median; 1: the grid anchored on the origin alone).
     """
 
     base_z: float = 0.0
@@ -109,6 +115,7 @@ class TraitSettings:
     leaf_min_points: int = 30
     leaf_bin_length: float = 0.01
     grid_cell: float = 0.005
+    shifted_grids: int = 9
 
     def __post_init__(self) -> None:
         positive = (
@@ -136,6 +143,9 @@ class TraitSettings:
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 3):
                 raise ValueError(f"{name} must be an int >= 3, got {value!r}")
+        if not (isinstance(self.shifted_grids, int) and self.shifted_grids >= 1 and self.shifted_grids % 2):
+            raise ValueError("shifted_grids must be an odd int >= 1 (a grid then holds the median leaf count), "
+                             f"got {self.shifted_grids!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -223,7 +233,11 @@ class PlantTraits:
     Aggregates: ``stem_diameter_m`` is the mean over stems; ``mean_stem_distance_m``
     the mean over all pairs of stems; ``mean_nearest_stem_distance_m`` the mean, over
     stems, of the distance to the nearest other stem; ``leaf_width_m`` and
-    ``leaf_length_m`` the largest over leaves.
+    ``leaf_length_m`` the largest over leaves. ``leaf_counts_over_grids`` and
+    ``leaf_areas_over_grids_m2``: the leaf count and area on each shifted grid the
+    organs were segmented on (:attr:`TraitSettings.shifted_grids`), the first the grid
+    anchored on the origin; their spread is the segmentation's own uncertainty (empty
+    for a truth not measured from a cloud).
     """
 
     height_m: float
@@ -245,6 +259,8 @@ class PlantTraits:
     leaf_widths_m: tuple[float, ...] = ()
     leaf_areas_m2: tuple[float, ...] = ()
     leaf_inclinations_deg: tuple[float, ...] = ()
+    leaf_counts_over_grids: tuple[int, ...] = ()
+    leaf_areas_over_grids_m2: tuple[float, ...] = ()
     notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
@@ -895,24 +911,70 @@ def _above_mask(pts: np.ndarray, s: TraitSettings) -> np.ndarray:
     return pts[:, 2] >= s.base_z + s.ground_clearance
 
 
-def _segment_above(pts: np.ndarray, s: TraitSettings) -> tuple[np.ndarray, "segmentation.Segmentation"]:
-    """The points above the ground clearance and their segmentation, as traits read them."""
+def on_file_grid(points: np.ndarray) -> np.ndarray:
+    """Points rounded to the grid a LAS file keeps (0.01 mm,
+    :data:`plantsim.cloud.export.LAS_SCALE_M`).
+
+    Traits are measured on this grid, so a scan's traits in memory and those of the
+    LAS file it was written to are the same numbers: the segmentation cuts the cloud
+    with voxels and level sets, and a rounding that moves every point by up to 5 um
+    moved a leaf across a boundary (an ideal maize read 9 leaves in memory and 10
+    from its file). A float32 file (PLY, PCD) moves a coordinate by up to 0.03 um,
+    and a few of its points round the other way. 0.01 mm is far below any scanner's
+    range resolution (the URG-04LX's is 1 mm).
+    """
+    from plantsim.cloud.export import LAS_SCALE_M
+
+    return np.round(points / LAS_SCALE_M) * LAS_SCALE_M
+
+
+class _Grids(typing.NamedTuple):
+    """The organs of a cloud on its shifted grids (:func:`_segment_above`)."""
+
+    points_above: np.ndarray
+    segmentation: "segmentation.Segmentation"  # the representative grid's
+    leaf_counts: tuple[int, ...]
+    leaf_areas_m2: tuple[float, ...]
+
+
+def _segment_above(pts: np.ndarray, s: TraitSettings) -> _Grids:
+    """The points above the ground clearance and their segmentation on
+    ``s.shifted_grids`` grids, as traits read them: of the grids whose leaf count is
+    the median, the one whose leaf area (:func:`_leaf_measures`) is nearest their
+    median area (the first on a tie); and each grid's leaf count and leaf area.
+
+    The median member in count, then in area: a micrometre's jitter changes a few
+    grids' outcomes, and the median count rarely (scripts/traits_stability.py). The
+    area moves more: where the grids' areas fall in two groups (a leaf lost to the
+    stem's column on some grids), a jitter can pick a grid of the other group."""
     from plantsim.evaluation import segmentation
 
     above = pts[_above_mask(pts, s)]
     if len(above) < 17:
         raise ValueError(f"points_turntable holds {len(above)} points above the ground clearance; "
                          "traits need at least 17")
-    return above, segmentation.segment_organs(
-        above, settings=segmentation.SegmentationSettings(
-            base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter))
+    grids = segmentation.segment_on_shifted_grids(
+        above, settings=segmentation.SegmentationSettings(base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter),
+        offsets=segmentation.shifted_grid_offsets(s.shifted_grids))
+    counts = np.array([len(g.leaf_midribs) for g in grids])
+    areas = np.array([sum(_leaf_measures(g.points[g.leaf_label == i], m, link=g.link_m)[2]
+                          for i, m in enumerate(g.leaf_midribs)) if len(g.leaf_midribs) else _NAN
+                      for g in grids], dtype=np.float64)
+    candidates = np.flatnonzero(counts == int(np.median(counts)))
+    pick = int(candidates[0])
+    known = candidates[np.isfinite(areas[candidates])]
+    if len(known):
+        pick = int(known[np.argmin(np.abs(areas[known] - float(np.median(areas[known]))))])
+    return _Grids(above, grids[pick], tuple(int(c) for c in counts), tuple(float(a) for a in areas))
 
 
 def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None = None
                        ) -> "segmentation.Segmentation":
     """The segmentation :func:`extract_traits` reads its organs from: the points above
-    ``base_z + ground_clearance``, segmented with the settings' base and widest stem
-    (:func:`plantsim.evaluation.segmentation.segment_organs`).
+    ``base_z + ground_clearance`` on the LAS grid (:func:`on_file_grid`), segmented
+    with the settings' base and widest stem on ``settings.shifted_grids`` grids: of the
+    grids of the median leaf count, the one whose leaf area is nearest their median
+    (:func:`plantsim.evaluation.segmentation.segment_on_shifted_grids`).
 
     Args:
         points_turntable: (n, 3) float64, metres, turntable frame.
@@ -921,7 +983,7 @@ def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None 
     Returns:
         Segmentation (its ``points`` are the kept points above the clearance).
     """
-    return _segment_above(_as_cloud(points_turntable), settings or TraitSettings())[1]
+    return _segment_above(on_file_grid(_as_cloud(points_turntable)), settings or TraitSettings()).segmentation
 
 
 def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None,
@@ -930,7 +992,12 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
 
     Organs come from :func:`plantsim.evaluation.segmentation.segment_organs`
     (level-set skeleton from stems found base-up; method, sources and validity
-    there). Then:
+    there), on the points rounded to a LAS file's 0.01 mm grid (:func:`on_file_grid`:
+    a scan and its file read the same traits) and on ``settings.shifted_grids`` voxel
+    grids: the organs are the median grid's (:func:`segment_for_traits`), and
+    ``leaf_counts_over_grids`` and ``leaf_areas_over_grids_m2`` say what every grid
+    read, the segmentation's own uncertainty (the ideal maize 9-11 leaves, the ideal
+    30-leaf rosette 8-21). Then:
 
     - height: :func:`robust_height`. With ``range_noise_m``, its top voxel asks for the
       points of the smaller of the cloud's apparent noise and the sensor's (the median
@@ -981,14 +1048,14 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         PlantTraits; NaN where a trait could not be measured, with notes saying why.
     """
     s = settings or TraitSettings()
-    pts = _as_cloud(points_turntable)
+    pts = on_file_grid(_as_cloud(points_turntable))
     noise = None
     if range_noise_m is not None:
         noise = np.asarray(range_noise_m, dtype=np.float64)
         if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
             raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
                              f"got {noise.shape}")
-    above, seg = _segment_above(pts, s)
+    above, seg, grid_counts, grid_areas = _segment_above(pts, s)
     noise_above = None if noise is None else noise[_above_mask(pts, s)]
     noise_seg = None if noise is None else noise_above[seg.kept]
     notes: list[str] = []
@@ -1090,6 +1157,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         leaf_widths_m=tuple(lf.width_m for lf in leaves),
         leaf_areas_m2=tuple(lf.area_m2 for lf in leaves),
         leaf_inclinations_deg=tuple(lf.inclination_deg for lf in leaves),
+        leaf_counts_over_grids=grid_counts,
+        leaf_areas_over_grids_m2=grid_areas,
         notes=tuple(notes),
     )
 
