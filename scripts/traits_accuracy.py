@@ -77,6 +77,10 @@ def main() -> None:
                   f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm"
                   f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}  "
                   f"{time.perf_counter() - t0:.1f} s", flush=True)
+            counts = est.leaf_counts_over_grids
+            areas = [100 * (a / tr["leaf_area_m2"] - 1) for a in est.leaf_areas_over_grids_m2 if a == a]
+            print(f"{'':16s} {'':7s}  over {len(counts)} shifted grids: leaves {min(counts)}-{max(counts)}"
+                  + (f", area {min(areas):+.0f}..{max(areas):+.0f} %" if areas else ""), flush=True)
             print(f"{'':16s} {'':7s}  leaves matched: {match_procedural_leaves(pts, pl).summary()}", flush=True)
 
 
