@@ -247,7 +247,7 @@ def document(measured: dict, seed_rig: Path) -> str:
         "",
         *[f"- {note}" for note in notes(measured, seed_rig)],
         "",
-        f"Scan times (load, build, cast, reconstruct; one shared machine): {times}. The paper reports "
+        f"Scan and trait times (load, build, cast, reconstruct, extract the traits on 9 grids; one shared machine): {times}. The paper reports "
         "about 40 minutes per scan.",
         "",
     ])
