@@ -844,11 +844,14 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
     leaf_pts = np.flatnonzero(leaf_label >= 0)
     if off.any() and len(leaf_pts):
         released = np.flatnonzero(off)
-        d, j = cKDTree(pts[leaf_pts]).query(pts[released], workers=-1)
         # Only points touching a leaf join it; the rest (another organ's
-        # fragments) leave the stem unlabelled.
+        # fragments) leave the stem unlabelled. The search stops at ``link`` (no
+        # neighbour: d is inf and j the tree's size), which the rule needs anyway.
+        d, j = cKDTree(pts[leaf_pts]).query(pts[released], distance_upper_bound=link, workers=-1)
         stem_label[released] = -1
-        leaf_label[released] = np.where(d <= link, leaf_label[leaf_pts[j]], -1)
+        near = d <= link
+        leaf_label[released] = -1
+        leaf_label[released[near]] = leaf_label[leaf_pts[j[near]]]
     return stem_label, leaf_label
 
 
