@@ -195,6 +195,12 @@ def test_traits_of_a_rosette_scanned_edge_on_repeat_the_rigs_warning(tmp_path, c
         assert len(counts) == 9 and data["leaf_count"] == sorted(counts)[4]
         assert len(data["leaf_areas_over_grids_m2"]) == 9
         assert f"over 9 shifted voxel grids: leaves {min(counts)}-{max(counts)}" in printed
+    # One grid: the origin's, no spread printed; an even number is refused before any work.
+    assert main(["traits", str(cloud), "--grids", "1", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert json.loads(out.read_text())["leaf_counts_over_grids"] == [counts[0]] and "shifted" not in printed
+    assert main(["traits", str(cloud), "--grids", "2"]) == 2
+    assert "--grids must be an odd number >= 1" in capsys.readouterr().err
 
 
 def test_evaluate_scan_writes_the_check_and_the_notes_into_the_sidecar_object(tmp_path):
