@@ -65,6 +65,10 @@ def test_each_shifted_grid_is_the_segmentation_with_that_offset():
     assert np.array_equal(segmentation.segment_organs(pts).leaf_label, grids[0].leaf_label)
     with pytest.raises(ValueError, match="at least one grid offset"):
         segmentation.segment_on_shifted_grids(pts, offsets=np.zeros((0, 4)))
+    # An offset in the settings is not silently replaced by the offsets given.
+    shifted = segmentation.SegmentationSettings(grid_offset=(0.5, 0, 0, 0))
+    with pytest.raises(ValueError, match="leave settings.grid_offset at zeros"):
+        segmentation.segment_on_shifted_grids(pts, settings=shifted, offsets=offsets)
 
 
 def test_a_shifted_grid_cuts_the_cloud_elsewhere():

@@ -1166,8 +1166,9 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
 
     Args:
         points_turntable: as :func:`segment_organs`.
-        settings: SegmentationSettings (defaults if None); its ``grid_offset`` is
-            replaced by each offset.
+        settings: SegmentationSettings (defaults if None); its ``grid_offset`` must be
+            zeros (the default) or the one offset given: the offsets say where the grids
+            start.
         offsets: (k, 4) grid offsets (:attr:`SegmentationSettings.grid_offset`), k >= 1.
 
     Returns:
@@ -1178,6 +1179,9 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
              .reshape(-1, 4)]
     if not grids:
         raise ValueError("offsets must hold at least one grid offset")
+    if any(s.grid_offset) and any(g.grid_offset != s.grid_offset for g in grids):
+        raise ValueError(f"settings.grid_offset {s.grid_offset} and offsets both say where the grid starts: "
+                         "leave settings.grid_offset at zeros and give the offsets")
     raw = _checked_points(points_turntable)
     kept, scale = kept_points(raw)
     pts = raw[kept]
