@@ -873,8 +873,7 @@ def uniform_width(u: np.ndarray) -> float:
     n = len(u)
     if n < 2:
         raise ValueError(f"a width needs at least 2 points across, got {n}")
-    extent = float(np.percentile(u, 98) - np.percentile(u, 2))
-    return extent * (n + 1) / (0.96 * (n - 1))
+    return float(_uniform_widths(np.sort(u), np.array([0]), np.array([n]))[0])
 
 
 def _uniform_widths(u_sorted: np.ndarray, start: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -1102,11 +1101,12 @@ def _drop_leaves_without_surface(leaf_label: np.ndarray, midribs: list[np.ndarra
 def shifted_grid_offsets(n: int) -> np.ndarray:
     """``n`` grid offsets for :attr:`SegmentationSettings.grid_offset`, spread evenly.
 
-    The first is zeros (the grid anchored on the origin); the others are the points
-    1 .. n - 1 of the Halton sequence in bases 2, 3, 5 and 7 (Halton 1960, "On the
+    The points 0 .. n - 1 of the Halton sequence in bases 2, 3, 5 and 7
+    (``scipy.stats.qmc.Halton``, unscrambled; Halton 1960, "On the
     efficiency of certain quasi-random sequences of points in evaluating
     multi-dimensional integrals", Numerische Mathematik 2:84-90), which cover the unit
-    cube of offsets and phases more evenly than random draws.
+    cube of offsets and phases more evenly than random draws; the first is zeros (the
+    grid anchored on the origin).
 
     Args:
         n: offsets, >= 1.
@@ -1116,16 +1116,10 @@ def shifted_grid_offsets(n: int) -> np.ndarray:
     """
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n must be an integer >= 1, got {n!r}")
+    from scipy.stats import qmc
 
-    def halton(i: int, base: int) -> float:
-        f, r = 1.0, 0.0
-        while i > 0:
-            f /= base
-            r += f * (i % base)
-            i //= base
-        return r
-
-    return np.array([[halton(i, b) for b in (2, 3, 5, 7)] for i in range(int(n))], dtype=np.float64)
+    # Unscrambled, the sequence starts at its point 0, the origin.
+    return qmc.Halton(d=4, scramble=False).random(int(n))
 
 
 def _checked_points(points_turntable: Any) -> np.ndarray:
