@@ -1,6 +1,7 @@
 """Trait accuracy on procedural plants with exact traits (issue 13 targets).
 
-Scans maize, wheat (tillers) and a rosette with the pipeline and prints, per plant,
+Scans maize, wheat (tillers), rosettes of 12 and 30 leaves, a trifoliate dicot and three
+3-leaf plants (maize, rosette, bean) with the pipeline and prints, per plant,
 estimate/truth (error) for height, leaf count and leaf area, with the issue's targets,
 then the stems found and their mean diameter (marked when noise hides it):
 ideal 0.5 deg: 2 %, 20 %, 20 %; realistic 1 deg: 5 %, 40 %, 35 %. A second line per
@@ -52,7 +53,11 @@ def main() -> None:
     plants = (("maize 9 leaves", make_maize(seed=0)), ("wheat 4 tillers", make_wheat(seed=0)),
               ("rosette 12 leaves", make_rosette(seed=1, n_leaves=12)),
               ("rosette 30 leaves", make_rosette(seed=2, n_leaves=30)),
-              ("dicot 8 trifoliate leaves (24 laminae)", make_dicot(seed=0)))
+              ("dicot 8 trifoliate leaves (24 laminae)", make_dicot(seed=0)),
+              # The issue's smallest leaf count, on three species shapes.
+              ("maize 3 leaves", make_maize(seed=2, n_leaves=3)),
+              ("rosette 3 leaves", make_rosette(seed=0, n_leaves=3)),
+              ("bean 3 simple leaves", make_dicot(seed=1, n_leaves=3, leaflets=1)))
     for setting, default_step in (("ideal", 0.5), ("realistic", 1.0)):
         step = args.step or default_step
         t_h, t_n, t_a = TARGETS[setting]

@@ -4,8 +4,9 @@ The issue's targets: from an ideal 0.5-degree scan, height within 2 %, leaf coun
 within 20 %, leaf area within 20 %; from a realistic 1-degree scan (URG-04LX noise
 model), 5 %, 40 % and 35 %. Plants: maize (9 leaves), wheat (4 tillers, 16 leaves,
 stems 4 mm), rosettes of 12 and 30 overlapping leaves (touching leaves), a bean-like dicot
-(8 trifoliate leaves: 24 laminae on petioles). Each scan
-runs once per module (cached).
+(8 trifoliate leaves: 24 laminae on petioles), and the issue's smallest leaf count,
+three leaves: a maize, a rosette and a bean with simple leaves. Each scan runs once per
+module (cached).
 
 Asserted: every target the current segmentation meets (``scripts/traits_accuracy.py``
 prints the whole table). Targets not met yet are strict ``xfail``s, so a fix that
@@ -18,7 +19,18 @@ wheat area (+265 %: one stem of four found, its 4 mm hidden in a noisy column 5 
 the other tillers read as wide leaves) and realistic rosettes (one leaf each, area
 -59 % / -82 %; a note says that one leaf is a ring of merged
 leaves, tested below); the dicot's realistic leaf count (13 for 24:
-the leaflets of a leaf merge).
+the leaflets of a leaf merge); on the 3-leaf plants, the ideal counts (maize 4, rosette 4,
+bean 0 leaves for 3), the ideal rosette's height (-2.3 %), the ideal bean's area (no leaf),
+the realistic maize's height (-7.4 %), the realistic rosette's count and area (1 leaf,
+-42 %) and the realistic bean's area (+39 %). Most of a small plant's points lie on its
+stem (97 % of the ideal bean's within 6 mm of the axis, 47 % of the maize's), and the
+point spacing the segmentation scales by is the 90th percentile over the points: the
+bean's reads its stem's 0.14 mm, so its voxels (0.28 mm) join no leaf to the stem, and
+the maize's 0.57 mm breaks its stem's walk at the base (its stem, 0.013 m for 0.42, is
+read as a leaf). A spacing weighted by the area each point stands for reads 1.0 and
+0.9 mm and finds the maize's 3 leaves and stem, but moves the bean to 8 leaves (its
+leaves seen at a slant are scan lines 8 mm apart, denser along the line) and the
+9-leaf maize's area from -19 % to -22 %: not landed.
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
 
 Traits are measured on the LAS file's 0.01 mm grid, and the organs segmented on 9
@@ -53,10 +65,15 @@ PLANTS = {
     "rosette12": lambda: make_rosette(seed=1, n_leaves=12),
     "rosette30": lambda: make_rosette(seed=2, n_leaves=30),
     "dicot": lambda: make_dicot(seed=0),  # 8 trifoliate leaves: 24 laminae, each a leaf of the truth
+    # The issue's smallest leaf count: three leaves, on three species shapes.
+    "maize3": lambda: make_maize(seed=2, n_leaves=3),
+    "rosette3": lambda: make_rosette(seed=0, n_leaves=3),
+    "bean3": lambda: make_dicot(seed=1, n_leaves=3, leaflets=1),  # three simple leaves
 }
 IDEAL = (True, 0.5)
 REALISTIC = (False, 1.0)
 NOT_YET = "issue 13 target not met by the current segmentation (see the module docstring)"
+SMALL = ["maize3", "rosette3", "bean3"]
 
 
 @functools.lru_cache(maxsize=None)
@@ -90,25 +107,32 @@ def _miss(*ids):
     return [pytest.param(*i, marks=pytest.mark.xfail(strict=True, reason=NOT_YET)) for i in ids]
 
 
-@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "rosette30", "dicot"])
+def _with_small(names, *missed):
+    """``names`` and the 3-leaf plants, those in ``missed`` as strict xfails."""
+    return list(names) + [n for n in SMALL if n not in missed] + _miss(*((n,) for n in missed))
+
+
+@pytest.mark.parametrize("name", _with_small(["maize", "wheat", "rosette12", "rosette30", "dicot"], "rosette3"))
 def test_height_from_an_ideal_half_degree_scan_within_two_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.height_m, truth["height_m"]) <= 0.02
 
 
-@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "rosette30", "dicot"])
+@pytest.mark.parametrize("name", _with_small(["maize", "wheat", "rosette12", "rosette30", "dicot"], "maize3"))
 def test_height_from_a_realistic_one_degree_scan_within_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.height_m, truth["height_m"]) <= 0.05
 
 
-@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "dicot"] + _miss(("rosette30",)))
+@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "dicot"] + _miss(("rosette30",))
+                         + _with_small([], "maize3", "rosette3", "bean3"))
 def test_leaf_count_from_an_ideal_scan_within_twenty_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.20
 
 
-@pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",)))
+@pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",))
+                         + _with_small([], "bean3"))
 def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.20
@@ -116,13 +140,15 @@ def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
 
 # The maize (10 for 9) and the wheat (10 for 16) meet the count by number only: 0 and
 # 2 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md).
-@pytest.mark.parametrize("name", ["maize", "wheat"] + _miss(("rosette12",), ("rosette30",), ("dicot",)))
+@pytest.mark.parametrize("name", ["maize", "wheat"] + _miss(("rosette12",), ("rosette30",), ("dicot",))
+                         + _with_small([], "rosette3"))
 def test_leaf_count_from_a_realistic_scan_within_forty_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.40
 
 
-@pytest.mark.parametrize("name", ["maize", "dicot"] + _miss(("wheat",), ("rosette12",), ("rosette30",)))
+@pytest.mark.parametrize("name", ["maize", "dicot"] + _miss(("wheat",), ("rosette12",), ("rosette30",))
+                         + _with_small([], "rosette3", "bean3"))
 def test_leaf_area_from_a_realistic_scan_within_thirty_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.35
@@ -172,7 +198,11 @@ def test_the_widest_leaf_from_an_ideal_scan_within_three_percent(name):
     pytest.param("maize", marks=pytest.mark.xfail(strict=True, reason=(
         "the maize's stem walk reads 0.30-0.50 m for 0.42 over the shifted grids: it follows a "
         "leaf up the whorl or stops at a leaf's junction"))),
-    "wheat"])
+    "wheat", "bean3",
+    # The 3-leaf maize's stem walk breaks at its base (0.013 m for 0.42): the point spacing
+    # is read on the stem (module docstring), and the stem is read as a leaf.
+    pytest.param("maize3", marks=pytest.mark.xfail(strict=True, reason=(
+        "the 3-leaf maize's spacing is read on its stem, and its stem walk breaks at the base")))])
 def test_stem_height_from_an_ideal_scan_within_five_percent(name):
     # The stem's top, not where a leaf wrapped round it split its level sets (0.24 m
     # for 0.42 m on the maize before the walk went on through both halves).
