@@ -107,32 +107,32 @@ def _miss(*ids):
     return [pytest.param(*i, marks=pytest.mark.xfail(strict=True, reason=NOT_YET)) for i in ids]
 
 
-def _with_small(names, *missed):
-    """``names`` and the 3-leaf plants, those in ``missed`` as strict xfails."""
-    return list(names) + [n for n in SMALL if n not in missed] + _miss(*((n,) for n in missed))
+def _small(*missed):
+    """The 3-leaf plants, those in ``missed`` as strict xfails."""
+    return [n for n in SMALL if n not in missed] + _miss(*((n,) for n in missed))
 
 
-@pytest.mark.parametrize("name", _with_small(["maize", "wheat", "rosette12", "rosette30", "dicot"], "rosette3"))
+@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "rosette30", "dicot"] + _small("rosette3"))
 def test_height_from_an_ideal_half_degree_scan_within_two_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.height_m, truth["height_m"]) <= 0.02
 
 
-@pytest.mark.parametrize("name", _with_small(["maize", "wheat", "rosette12", "rosette30", "dicot"], "maize3"))
+@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "rosette30", "dicot"] + _small("maize3"))
 def test_height_from_a_realistic_one_degree_scan_within_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.height_m, truth["height_m"]) <= 0.05
 
 
 @pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "dicot"] + _miss(("rosette30",))
-                         + _with_small([], "maize3", "rosette3", "bean3"))
+                         + _small("maize3", "rosette3", "bean3"))
 def test_leaf_count_from_an_ideal_scan_within_twenty_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.20
 
 
 @pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",))
-                         + _with_small([], "bean3"))
+                         + _small("bean3"))
 def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.20
@@ -141,14 +141,14 @@ def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
 # The maize (10 for 9) and the wheat (10 for 16) meet the count by number only: 0 and
 # 2 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md).
 @pytest.mark.parametrize("name", ["maize", "wheat"] + _miss(("rosette12",), ("rosette30",), ("dicot",))
-                         + _with_small([], "rosette3"))
+                         + _small("rosette3"))
 def test_leaf_count_from_a_realistic_scan_within_forty_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.40
 
 
 @pytest.mark.parametrize("name", ["maize", "dicot"] + _miss(("wheat",), ("rosette12",), ("rosette30",))
-                         + _with_small([], "rosette3", "bean3"))
+                         + _small("rosette3", "bean3"))
 def test_leaf_area_from_a_realistic_scan_within_thirty_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.35
