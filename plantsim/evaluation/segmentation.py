@@ -1278,7 +1278,13 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
             best = int(np.argmin(off))
             if off[best] <= reach and centroid[kids[best], 2] > centroid[cur, 2] - bin_w:
                 nxt = axis_xy
-                if spread[kids[best]] <= column:
+                # A noisy stem's top piece moves it only if it lies round it (the axis
+                # within its reach of its centroid): the last level set of a noisy stem is
+                # often a lobe of its noise disc, beside the axis, and the axis that followed
+                # it 13-23 mm off left the stem's top points out of its column.
+                lobe = (not st.diameter_resolved and not children[kids[best]]
+                        and off[best] > spread[kids[best]])
+                if spread[kids[best]] <= column and not lobe:
                     nxt = centroid[kids[best], :2].copy()
                     track.append((float(centroid[kids[best], 2]), nxt[0], nxt[1]))
                 is_stem_piece[kids[best]] = si
