@@ -160,7 +160,9 @@ def test_a_sparse_leaf_beside_a_dense_stem_is_kept_and_strays_still_go():
     kept, scale = segmentation.kept_points(pts)
     assert kept[: len(stem)].all() and kept[on_leaf].mean() > 0.99  # 2 junction points go
     assert not kept[-2:].any()
-    assert scale == segmentation.estimate_scale(pts[segmentation.outlier_mask(pts)])
+    # The scale is the kept points', the sparse leaf included (judged first with the scale
+    # of the points the removal kept).
+    assert scale == segmentation.estimate_scale(pts[kept])
 
     noisy = pts.copy()
     noisy[: len(stem) + len(leaf)] += 0.0015 * np.random.default_rng(0).standard_normal((len(stem) + len(leaf), 3))
@@ -203,6 +205,24 @@ def test_a_leaf_crossing_above_another_does_not_widen_it_but_a_hidden_band_still
     halves = np.vstack([strip(-0.015, -0.007), strip(0.007, 0.015)])
     _, _, band, _ = segmentation.node_frames(halves, midrib + [0, -0.011, 0], link=0.004)
     assert np.all((band[1:-1] >= 0.0295) & (band[1:-1] <= 0.0315)), band
+
+
+def test_the_spacing_is_the_surfaces_not_the_points_where_a_small_dense_part_holds_most():
+    """A turntable sees its axis on every turn: a small plant's stem holds most of its points.
+
+    A 20 x 20 mm patch sampled every 0.1 mm (40,401 points) beside a 100 x 100 mm leaf
+    sampled every 2 mm (2,601 points, 6 % of them): the leaf is 96 % of the area, and the
+    spacing is its 2 mm (a 90th percentile over the points read the patch's 0.1).
+    """
+    dense = np.arange(0.0, 0.02 + 1e-9, 0.0001)
+    sparse = np.arange(0.0, 0.1 + 1e-9, 0.002)
+    x, y = np.meshgrid(dense, dense)
+    patch = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    x, y = np.meshgrid(sparse, sparse)
+    leaf = np.column_stack([0.03 + x.ravel(), y.ravel(), np.zeros(x.size)])
+    sc = segmentation.estimate_scale(np.vstack([patch, leaf]))
+    assert sc.spacing_m == pytest.approx(0.002, rel=0.1)
+    assert segmentation.estimate_scale(patch).spacing_m == pytest.approx(0.0001, rel=0.1)
 
 
 def test_scale_follows_the_spacing():
@@ -449,7 +469,8 @@ def test_mixed_pixel_trails_of_a_scan_without_range_noise_are_not_leaves():
     edges; with the noise on, the noise hides them. A realistic maize without range noise
     read 24 leaves for 9, 7 of them trails of 11-41 points whose points all lay more than
     3 mm off the mesh; now none of its leaves is mostly such points, and a note says how
-    many trails were left out."""
+    many trails were left out (3 today, 7 when the point spacing was a percentile over the
+    points: 1.9 mm then, 3.3 mm now, and voxels of 6.5 mm take in the shorter trails)."""
     plant = make_maize(seed=0)
     config = RunConfig(scan=StepScan(step_deg=1.0))
     config = config.replace(sensor_model=dataclasses.replace(config.sensor_model, range_noise=False))
@@ -458,7 +479,7 @@ def test_mixed_pixel_trails_of_a_scan_without_range_noise_are_not_leaves():
     seg = traits.segment_for_traits(pts)
     off_mesh = metrics.point_to_mesh_distance(seg.points, result.plant.vertices_turntable,
                                               result.plant.faces).distance > 0.003
-    assert seg.sparse_branches >= 5
+    assert seg.sparse_branches >= 3
     shares = [off_mesh[seg.leaf_label == i].mean() for i in range(len(seg.leaf_midribs))]
     assert max(shares) < 0.5, shares
     est = traits.extract_traits(pts)

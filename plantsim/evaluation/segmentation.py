@@ -7,7 +7,8 @@ laser-scanned plants by Xu, Gossett & Chen (2007, "Knowledge and heuristic-based
 modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
 "PypeTree", Sensors 14:4271-4289):
 
-1. Scale. The point spacing ``h`` (from the distance to the 16th neighbour) and the noise
+1. Scale. The point spacing ``h`` (from the distance to the 16th neighbour, the median
+   over the surface's area, not over its points) and the noise
    ``sigma`` (RMS residual of local plane fits, Hoppe et al. 1992, at the most
    surface-like of a ladder of radii, Mitra & Nguyen 2003; :func:`estimate_scale`)
    are measured on the cloud; every length below is a multiple of
@@ -17,7 +18,8 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    is dropped, unless the cloud is clean (noise at most half its spacing) and the
    point's 12 neighbours lie on a plane: that is the sparse outer part of a leaf,
    far from the turntable's axis (:func:`kept_points`). The scale is measured on
-   the points the removal keeps.
+   the points kept, that sparse surface included (a stem on the axis, seen from every
+   turn, holds most of a small plant's points: the scale is the leaves' too).
 3. Graph: points are merged into voxel centroids of side ``v``; centroids closer
    than ``2 v`` are joined (weight = distance). Components the occlusion cut off
    are bridged to the rest by their shortest link (Livny et al. 2010 join tree
@@ -116,8 +118,9 @@ class CloudScale:
     """The length scales of a cloud, metres.
 
     Attributes:
-        spacing_m: mean point spacing on the surface, ``r16 sqrt(pi / 16)`` with ``r16``
-            the 90th percentile of the distance to the 16th neighbour.
+        spacing_m: point spacing on the surface, ``r16 sqrt(pi / 16)`` with ``r16`` the
+            distance to the 16th neighbour: its median over the surface's area (each
+            point weighted by the area it stands for, ``r16^2``).
         noise_m: median RMS distance of 16-neighbourhoods from their best-fit plane.
         voxel_m: the working resolution ``max(2 spacing, 1.5 noise)``.
     """
@@ -131,8 +134,14 @@ def estimate_scale(points: np.ndarray, *, max_samples: int = 20_000, seed: int =
                    workers: int = -1) -> CloudScale:
     """Point spacing and noise of a cloud (see the module docstring, step 1).
 
-    Spacing: ``r16 sqrt(pi / 16)`` with ``r16`` the 90th percentile of the distance
-    to the 16th neighbour (a surface of density ``16 / (pi r16^2)``).
+    Spacing: ``r16 sqrt(pi / 16)`` with ``r16`` the distance to the 16th neighbour (a
+    surface of density ``16 / (pi r16^2)``), its median over the surface's area: each
+    point weighs the area it stands for, ``pi r16^2 / 16``. A turntable sees the
+    region near its axis on every turn, so a per-point statistic measures the stem:
+    97 % of an ideal 3-leaf bean's points lie within 6 mm of the axis, and their 90th
+    percentile read 0.14 mm for leaves sampled 1-2 mm apart (no leaf joined the
+    stem). Weighted by area, a stem counts for its surface, and the spacing is that of
+    the median square millimetre of the plant (a plane grid's spacing on a grid).
 
     Noise: multi-scale local plane fits (the residual of Hoppe et al. 1992, the
     scale chosen as in Mitra & Nguyen 2003, "Estimating surface normals in noisy
@@ -167,11 +176,18 @@ def estimate_scale(points: np.ndarray, *, max_samples: int = 20_000, seed: int =
     # nearest neighbour understates the spacing: take the radius r16 holding 16
     # neighbours on a surface of density rho = 16 / (pi r16^2), spacing 1/sqrt(rho).
     d, _ = tree.query(pts[idx], k=17, workers=workers)
-    # Regions near the axis are seen on every turn and are far denser than the rest;
-    # connectivity is set by the sparse regions, so the 90th percentile is used.
-    spacing = float(np.percentile(d[:, 16], 90) * math.sqrt(math.pi / 16.0))
+    spacing = _area_weighted_median(d[:, 16], d[:, 16] ** 2) * math.sqrt(math.pi / 16.0)
     noise = _noise_multiscale(pts, 3.0 * spacing, rng=rng, workers=workers, tree=tree)
     return CloudScale(spacing_m=spacing, noise_m=noise, voxel_m=max(2.0 * spacing, 1.5 * noise))
+
+
+def _area_weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The value below which half the total weight lies (the lower weighted median)."""
+    order = np.argsort(values, kind="stable")
+    cum = np.cumsum(weights[order], dtype=np.float64)
+    if not cum[-1] > 0:
+        return float(np.median(values))  # all weights zero: duplicate points only
+    return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
 
 
 def _noise_multiscale(pts: np.ndarray, r_min: float, *, rng: np.random.Generator, workers: int,
@@ -287,9 +303,11 @@ def kept_points(points: np.ndarray, *, workers: int = -1) -> tuple[np.ndarray, C
     """The points the segmentation keeps, and the cloud's scale.
 
     :func:`outlier_mask`, then the flagged points that are the sparse part of a
-    clean surface back (:func:`_sparse_surface`); the scale is estimated on the
-    points the outlier removal keeps (the sparse parts of a surface do not widen
-    the working resolution).
+    clean surface back (:func:`_sparse_surface`, judged with the scale of the points
+    the removal keeps); the scale returned is estimated again on all the points kept.
+    The removal's verdict follows the points, not the surface: on a small plant whose
+    stem holds most of the points it flags most of the leaves, and a scale without
+    them is the stem's.
 
     Args:
         points: (n, 3) float64, metres, n >= 17.
@@ -301,7 +319,11 @@ def kept_points(points: np.ndarray, *, workers: int = -1) -> tuple[np.ndarray, C
     pts = np.asarray(points, dtype=np.float64)
     kept = outlier_mask(pts, workers=workers)
     scale = estimate_scale(pts[kept], workers=workers)
-    return kept | _sparse_surface(pts, ~kept, scale, workers=workers), scale
+    rescued = _sparse_surface(pts, ~kept, scale, workers=workers)
+    if not rescued.any():
+        return kept, scale
+    kept = kept | rescued
+    return kept, estimate_scale(pts[kept], workers=workers)
 
 
 def voxel_centroids(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
