@@ -80,12 +80,16 @@ def main() -> None:
                      if unresolved else "") + "  "
                   f"stems {est.stem_count}/{len(tr['stems'])} "
                   f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm"
-                  f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}  "
+                  f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}, "
+                  f"height {_mm(est.stem_height_m)}/{_mm(max(st['height_m'] for st in tr['stems']))} mm  "
                   f"{time.perf_counter() - t0:.1f} s", flush=True)
             counts = est.leaf_counts_over_grids
             areas = [100 * (a / tr["leaf_area_m2"] - 1) for a in est.leaf_areas_over_grids_m2 if a == a]
+            stem_heights = [h for h in est.stem_heights_over_grids_m if h == h]
             print(f"{'':16s} {'':7s}  over {len(counts)} shifted grids: leaves {min(counts)}-{max(counts)}"
-                  + (f", area {min(areas):+.0f}..{max(areas):+.0f} %" if areas else ""), flush=True)
+                  + (f", area {min(areas):+.0f}..{max(areas):+.0f} %" if areas else "")
+                  + (f", stem height {_mm(min(stem_heights))}-{_mm(max(stem_heights))} mm" if stem_heights else ""),
+                  flush=True)
             print(f"{'':16s} {'':7s}  leaves matched: {match_procedural_leaves(pts, pl).summary()}", flush=True)
 
 

@@ -195,6 +195,18 @@ def test_traits_of_a_rosette_scanned_edge_on_repeat_the_rigs_warning(tmp_path, c
         assert len(counts) == 9 and data["leaf_count"] == sorted(counts)[4]
         assert len(data["leaf_areas_over_grids_m2"]) == 9
         assert f"over 9 shifted voxel grids: leaves {min(counts)}-{max(counts)}" in printed
+        # The stem height's spread over the grids, printed where a stem is found: in the
+        # .las cloud's plant points (the crown); the .pts cloud, disk points and all,
+        # reads no stem, and no stem height is printed.
+        stem_heights = data["stem_heights_over_grids_m"]
+        spread_line = printed.split("over 9 shifted voxel grids:")[1].splitlines()[0]
+        assert len(stem_heights) == 9 and data["stem_count"] == (1 if name.endswith(".las") else 0)
+        if data["stem_count"]:
+            assert None not in stem_heights and data["stem_height_m"] in stem_heights
+            assert spread_line.endswith(f", stem height {1e3 * min(stem_heights):.4g}-"
+                                        f"{1e3 * max(stem_heights):.4g} mm (the median grid's are above)")
+        else:
+            assert stem_heights == [None] * 9 and "stem height" not in spread_line
     # One grid: the origin's, no spread printed; an even number is refused before any work.
     assert main(["traits", str(cloud), "--grids", "1", "-o", str(out)]) == 0
     printed = capsys.readouterr().out

@@ -91,6 +91,33 @@ def test_traits_keep_the_grid_of_the_median_leaf_count_and_carry_every_grids():
     one = traits.extract_traits(pts, settings=traits.TraitSettings(shifted_grids=1))
     assert one.leaf_counts_over_grids == t.leaf_counts_over_grids[:1]
     assert one.leaf_areas_over_grids_m2 == t.leaf_areas_over_grids_m2[:1]
+    assert one.stem_heights_over_grids_m == t.stem_heights_over_grids_m[:1]
+
+
+def test_traits_carry_the_stem_height_every_grid_reads():
+    # Each grid's stem height is the top of the stem points that grid's own walk kept,
+    # by the plant height's rule; the one reported is the representative grid's.
+    pts = _plant()
+    t = traits.extract_traits(pts)
+    heights = t.stem_heights_over_grids_m
+    assert len(heights) == 9 and t.stem_height_m in heights
+    on_grid = traits.on_file_grid(pts)
+    above = on_grid[traits._above_mask(on_grid, traits.TraitSettings())]  # above the ground clearance
+    grids = segmentation.segment_on_shifted_grids(above, offsets=segmentation.shifted_grid_offsets(9))
+    min_points = traits.top_voxel_min_points(grids[0].scale)
+    for g, h in zip(grids, heights):
+        (stem_points,) = [g.points[g.stem_label == i] for i in range(len(g.stems))]
+        assert h == traits.robust_height(stem_points, scale=g.scale, min_points=min_points)
+    # The 0.3 m stem reads its height on every grid, within a voxel.
+    assert np.allclose(heights, 0.3, atol=grids[0].scale.voxel_m)
+    assert t.to_dict()["stem_heights_over_grids_m"] == list(heights)
+    # No stem found: NaN on every grid, None in JSON.
+    rng = np.random.default_rng(0)
+    flat = _strip(rng, 0.15, 0.02, 5_000, origin=(0.0, 0.0, 0.05), direction=(1.0, 0.0, 0.0))
+    bare = traits.extract_traits(flat)
+    assert bare.stem_count == 0 and len(bare.stem_heights_over_grids_m) == 9
+    assert all(np.isnan(h) for h in bare.stem_heights_over_grids_m)
+    assert bare.to_dict()["stem_heights_over_grids_m"] == [None] * 9
 
 
 def test_traits_are_measured_on_the_las_files_grid():

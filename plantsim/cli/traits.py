@@ -169,6 +169,9 @@ def cmd_traits(args: argparse.Namespace) -> int:
             spread = f"leaves {min(counts)}-{max(counts)}"
             if areas:
                 spread += f", area {f(min(areas), 1e4)}-{f(max(areas), 1e4, ' cm^2')}"
+            stem_heights = [h for h in out.get("stem_heights_over_grids_m") or [] if h is not None]
+            if stem_heights:
+                spread += f", stem height {f(min(stem_heights), 1e3)}-{f(max(stem_heights), 1e3, ' mm')}"
             print(f"over {len(counts)} shifted voxel grids: {spread} (the median grid's are above)")
         for note in out["notes"]:
             print(f"note: {note}")

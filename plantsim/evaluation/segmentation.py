@@ -66,8 +66,8 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    not counted (:func:`_drop_leaves_without_surface`).
 9. Grids: the voxel grid (step 3) and the level sets (step 5) start somewhere, and a
    branch near a threshold goes one way or the other with where they start (a tip near
-   the shortest leaf, two halves near the merge rule): the ideal 30-leaf rosette reads 8
-   to 21 leaves over 9 grids, the maize 9 to 11. :func:`segment_on_shifted_grids`
+   the shortest leaf, two halves near the merge rule): the ideal 30-leaf rosette reads 13
+   to 25 leaves over 9 grids, the maize 9 to 11. :func:`segment_on_shifted_grids`
    segments on grids shifted by a fraction of a voxel and of a bin
    (:func:`shifted_grid_offsets`), sharing the steps no grid changes (outliers, scale,
    stems); traits read the median grid and its spread, as an averaged shifted histogram

@@ -233,11 +233,12 @@ class PlantTraits:
     Aggregates: ``stem_diameter_m`` is the mean over stems; ``mean_stem_distance_m``
     the mean over all pairs of stems; ``mean_nearest_stem_distance_m`` the mean, over
     stems, of the distance to the nearest other stem; ``leaf_width_m`` and
-    ``leaf_length_m`` the largest over leaves. ``leaf_counts_over_grids`` and
-    ``leaf_areas_over_grids_m2``: the leaf count and area on each shifted grid the
-    organs were segmented on (:attr:`TraitSettings.shifted_grids`), the first the grid
-    anchored on the origin; their spread is the segmentation's own uncertainty (empty
-    for a truth not measured from a cloud).
+    ``leaf_length_m`` the largest over leaves. ``leaf_counts_over_grids``,
+    ``leaf_areas_over_grids_m2`` and ``stem_heights_over_grids_m``: the leaf count, leaf
+    area and stem height on each shifted grid the organs were segmented on
+    (:attr:`TraitSettings.shifted_grids`), the first the grid anchored on the origin
+    (NaN where a grid found no leaf, or no stem); their spread is the segmentation's
+    own uncertainty (empty for a truth not measured from a cloud).
     """
 
     height_m: float
@@ -261,6 +262,7 @@ class PlantTraits:
     leaf_inclinations_deg: tuple[float, ...] = ()
     leaf_counts_over_grids: tuple[int, ...] = ()
     leaf_areas_over_grids_m2: tuple[float, ...] = ()
+    stem_heights_over_grids_m: tuple[float, ...] = ()
     notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
@@ -935,6 +937,7 @@ class _Grids(typing.NamedTuple):
     segmentation: "segmentation.Segmentation"  # the representative grid's
     leaf_counts: tuple[int, ...]
     leaf_areas_m2: tuple[float, ...]
+    grids: tuple["segmentation.Segmentation", ...]  # every grid's, in the offsets' order
 
 
 def _segment_above(pts: np.ndarray, s: TraitSettings) -> _Grids:
@@ -965,7 +968,8 @@ def _segment_above(pts: np.ndarray, s: TraitSettings) -> _Grids:
     known = candidates[np.isfinite(areas[candidates])]
     if len(known):
         pick = int(known[np.argmin(np.abs(areas[known] - float(np.median(areas[known]))))])
-    return _Grids(above, grids[pick], tuple(int(c) for c in counts), tuple(float(a) for a in areas))
+    return _Grids(above, grids[pick], tuple(int(c) for c in counts), tuple(float(a) for a in areas),
+                  tuple(grids))
 
 
 def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None = None
@@ -995,9 +999,11 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     there), on the points rounded to a LAS file's 0.01 mm grid (:func:`on_file_grid`:
     a scan and its file read the same traits) and on ``settings.shifted_grids`` voxel
     grids: the organs are the median grid's (:func:`segment_for_traits`), and
-    ``leaf_counts_over_grids`` and ``leaf_areas_over_grids_m2`` say what every grid
-    read, the segmentation's own uncertainty (the ideal maize 9-11 leaves, the ideal
-    30-leaf rosette 8-21). Then:
+    ``leaf_counts_over_grids``, ``leaf_areas_over_grids_m2`` and
+    ``stem_heights_over_grids_m`` say what every grid read, the segmentation's own
+    uncertainty (the ideal 0.5-degree maize of ``scripts/traits_accuracy.py``: 9-11
+    leaves, stem height 0.25-0.51 m for 0.42; the ideal 30-leaf rosette 13-25 leaves).
+    Then:
 
     - height: :func:`robust_height`. With ``range_noise_m``, its top voxel asks for the
       points of the smaller of the cloud's apparent noise and the sensor's (the median
@@ -1055,7 +1061,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
             raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
                              f"got {noise.shape}")
-    above, seg, grid_counts, grid_areas = _segment_above(pts, s)
+    above, seg, grid_counts, grid_areas, grids = _segment_above(pts, s)
     noise_above = None if noise is None else noise[_above_mask(pts, s)]
     noise_seg = None if noise is None else noise_above[seg.kept]
     notes: list[str] = []
@@ -1124,9 +1130,15 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
     # top; no stem can then read taller than the plant.
-    stem_tops = [robust_height(sp, base_z=s.base_z, scale=seg.scale, min_points=top_min_points)
-                 for sp in (seg.points[seg.stem_label == i] for i in range(len(stems))) if len(sp)]
-    stem_height = max(stem_tops) if stem_tops and stems else _NAN
+    def stem_height_of(grid) -> float:
+        tops = [robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points)
+                for sp in (grid.points[grid.stem_label == i] for i in range(len(grid.stems))) if len(sp)]
+        return max(tops) if tops else _NAN
+
+    stem_height = stem_height_of(seg)
+    # What every grid reads: where the walk up a stem goes on or stops depends on the
+    # grid (the ideal 9-leaf maize's stem, 0.42 m, reads 0.25-0.51 m over the 9 grids).
+    grid_stem_heights = tuple(stem_height if g is seg else stem_height_of(g) for g in grids)
     if not leaves:
         start = "the stem" if stems else "the cloud's lowest points"
         notes.append(f"no leaf: no skeleton branch reaches {1e3 * seg.min_leaf_length_m:.0f} mm (the "
@@ -1159,6 +1171,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         leaf_inclinations_deg=tuple(lf.inclination_deg for lf in leaves),
         leaf_counts_over_grids=grid_counts,
         leaf_areas_over_grids_m2=grid_areas,
+        stem_heights_over_grids_m=grid_stem_heights,
         notes=tuple(notes),
     )
 
