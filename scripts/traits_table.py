@@ -33,7 +33,7 @@ sys.path.insert(0, str(REPO_ROOT))
 sys.path.insert(0, str(REPO_ROOT / "scripts"))
 
 from plantsim.evaluation.evaluate import scan_range_noise  # noqa: E402
-from plantsim.evaluation.traits import convex_hull_volume, extract_traits  # noqa: E402
+from plantsim.evaluation.traits import convex_hull_volume, extract_traits, true_leaf_groups  # noqa: E402
 from plantsim.plant.mesh import load_plant, plant_from_arrays  # noqa: E402
 from plantsim.plant.procedural import make_dicot, make_maize, make_wheat  # noqa: E402
 from plantsim.scan.config import RunConfig  # noqa: E402
@@ -51,6 +51,7 @@ TRAITS = (
     ("stem_height_m", "stem height", 1e3, "mm"),
     ("mean_stem_distance_m", "distance between stems", 1e3, "mm"),
     ("leaf_count", "leaf count", 1, ""),
+    ("lamina_count", "lamina count (leaflets apart)", 1, ""),
     ("leaf_area_m2", "leaf area", 1e4, "cm^2"),
     ("leaf_length_m", "leaf length (longest)", 1e3, "mm"),
     ("leaf_width_m", "leaf width (widest)", 1e3, "mm"),
@@ -89,7 +90,9 @@ def truth_of(plant) -> dict:
         "height_m": t["height_m"], "stem_count": len(t["stems"]), "stem_diameter_m": t["stem_diameter_m"],
         "stem_height_m": max(s["height_m"] for s in t["stems"]),
         "mean_stem_distance_m": t["mean_stem_distance_m"] if t["mean_stem_distance_m"] is not None else math.nan,
-        "leaf_count": len(t["leaves"]), "leaf_area_m2": t["leaf_area_m2"],
+        # A compound leaf once (laminae on one petiole), as the cloud's leaf_count.
+        "leaf_count": len(set(true_leaf_groups(t["leaves"]))), "lamina_count": len(t["leaves"]),
+        "leaf_area_m2": t["leaf_area_m2"],
         "leaf_length_m": t["leaf_length_m"], "leaf_width_m": t["leaf_width_m"],
         "median_leaf_width_m": _nan_median([lf["width_m"] for lf in t["leaves"]]),
         "mean_leaf_inclination_deg": _nan_mean([lf["inclination_deg"] for lf in t["leaves"]]),

@@ -9,7 +9,7 @@ import pytest
 
 from plantsim.evaluation import metrics, segmentation, traits
 from plantsim.plant.mesh import find_stem_base, plant_from_arrays
-from plantsim.plant.procedural import make_maize, make_rosette, make_wheat
+from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
 from plantsim.rig.fit import fit_rig, rig_fit_warnings
 from plantsim.rig.geometry import RigGeometry
 from plantsim.scan.config import RunConfig
@@ -47,6 +47,51 @@ def test_traits_of_an_exact_dense_cloud(make, kw):
     for key in ("height_m", "stem_count", "stem_diameter_m", "stem_height_m", "leaf_count",
                 "leaf_area_m2", "leaf_lengths_m", "leaf_widths_m"):
         assert key in d
+
+
+@pytest.mark.parametrize("leaflets, laminae", [(3, 9), (1, 3)], ids=["trifoliate", "simple"])
+def test_a_compound_leaf_is_one_leaf_of_several_laminae(leaflets, laminae):
+    # Three leaves on petioles, each ending in three leaflets (a bean's trifoliate leaf)
+    # or in one blade: three leaves either way; nine laminae or three. The leaflets hang
+    # from the petiole's end, a stalk 3 mm across out of the stem's column.
+    plant = make_dicot(seed=0, n_leaves=3, leaflets=leaflets)
+    t = traits.extract_traits(_dense(plant))
+    truth = traits.traits_from_truth(plant.traits)
+    assert (truth.leaf_count, truth.lamina_count) == (3, laminae)
+    assert (t.leaf_count, t.lamina_count) == (3, laminae)
+    assert len(t.leaves) == len(t.leaf_lengths_m) == laminae
+    assert sorted({lf.group for lf in t.leaves}) == [0, 1, 2]
+    assert [lf.group for lf in t.leaves].count(0) == laminae // 3
+    assert any("compound" in n for n in t.notes) == (leaflets == 3)
+    assert t.to_dict()["lamina_count"] == laminae
+
+
+def test_cli_traits_prints_the_laminae_of_compound_leaves(tmp_path, capsys):
+    from plantsim.cli.app import build_parser
+    path = tmp_path / "bean.ply"
+    _write_xyz_ply(path, _dense(make_dicot(seed=0, n_leaves=3, leaflets=3)))
+    out = tmp_path / "t.json"
+    args = build_parser().parse_args(["traits", str(path), "-o", str(out)])
+    assert args.func(args) == 0
+    assert "leaves 3 (9 laminae), area" in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert (data["leaf_count"], data["lamina_count"]) == (3, 9)
+    assert sorted(lf["group"] for lf in data["leaves"]) == [0, 0, 0, 1, 1, 1, 2, 2, 2]
+
+
+def test_truth_leaflets_on_one_petiole_are_one_leaf():
+    leaves = [{"length_m": 0.1, "width_m": 0.05, "petiole": 0}, {"length_m": 0.1, "width_m": 0.05, "petiole": 0},
+              {"length_m": 0.1, "width_m": 0.05}, {"length_m": 0.1, "width_m": 0.05, "petiole": 3}]
+    t = traits.traits_from_truth({"height_m": 0.3, "leaves": leaves})
+    assert (t.leaf_count, t.lamina_count) == (3, 4)
+    assert [lf.group for lf in t.leaves] == [0, 0, 1, 2]
+    with pytest.raises(ValueError, match=r"truth\['leaves'\]\[1\]\['petiole'\] must be an integer"):
+        traits.true_leaf_groups([{"petiole": 1}, {"petiole": "a"}])
+    # Compared both ways: the leaves and the laminae.
+    est = dataclasses.replace(t, leaf_count=2, lamina_count=4)
+    names = {e.trait: e for e in traits.compare_traits(est, t).errors}
+    assert names["leaf_count"].estimate == 2 and names["leaf_count"].reference == 3
+    assert names["lamina_count"].estimate == names["lamina_count"].reference == 4
 
 
 def test_no_stem_is_said_honestly():

@@ -6,7 +6,9 @@ model), 5 %, 40 % and 35 %. Plants: maize (9 leaves), wheat (4 tillers, 16 leave
 stems 4 mm), rosettes of 12 and 30 overlapping leaves (touching leaves), a bean-like dicot
 (8 trifoliate leaves: 24 laminae on petioles), and the issue's smallest leaf count,
 three leaves: a maize, a rosette and a bean with simple leaves. Each scan runs once per
-module (cached).
+module (cached). Leaves are counted as a botanist counts them (and as Pheno4D labels a
+tomato's): a compound leaf once, so the dicot has 8 leaves; its 24 laminae are the
+lamina count, tested apart.
 
 Asserted: every target the current segmentation meets (``scripts/traits_accuracy.py``
 prints the whole table). Targets not met yet are strict ``xfail``s, so a fix that
@@ -14,13 +16,12 @@ reaches one turns the test red until it is promoted to a plain assertion:
 ideal rosette leaf area
 (-40 % / -58 %: most of it hidden from the default rig; the true leaves measured alone read
 -37 % / -48 %, scripts/traits_area_bound.py) and 30-leaf count (16: its inner
-leaves, a cup, stay merged); the ideal dicot's count (19 for 24: the leaflets of its
-top leaves merge, 18 to 20 over the grids); realistic
+leaves, a cup, stay merged); the dicot's lamina count (ideal 19 for 24: the leaflets of
+its top leaves merge, 18 to 21 over the grids; realistic 11); realistic
 wheat area (+295 %: one stem of four found, its 4 mm hidden in a noisy column 5 cm wide,
 the other tillers read as wide leaves) and realistic rosettes (6 leaves for 12, area
 -41 %; one leaf for 30, -82 %, which a note says is a ring of merged
-leaves, tested below); the dicot's realistic leaf count (11 for 24:
-the leaflets of a leaf merge); on the 3-leaf plants, the ideal rosette's height (-2.3 %),
+leaves, tested below); on the 3-leaf plants, the ideal rosette's height (-2.3 %),
 the realistic rosette's count (1 leaf) and the realistic bean's area (+77 %). The point
 spacing the segmentation scales by is the median over the surface's area, measured on
 every point kept (segmentation.estimate_scale): as a 90th percentile over the points, on
@@ -61,7 +62,7 @@ PLANTS = {
     "wheat": lambda: make_wheat(seed=0),
     "rosette12": lambda: make_rosette(seed=1, n_leaves=12),
     "rosette30": lambda: make_rosette(seed=2, n_leaves=30),
-    "dicot": lambda: make_dicot(seed=0),  # 8 trifoliate leaves: 24 laminae, each a leaf of the truth
+    "dicot": lambda: make_dicot(seed=0),  # 8 trifoliate leaves: 24 laminae, 3 on each petiole
     # The issue's smallest leaf count: three leaves, on three species shapes.
     "maize3": lambda: make_maize(seed=2, n_leaves=3),
     "rosette3": lambda: make_rosette(seed=0, n_leaves=3),
@@ -100,6 +101,11 @@ def _rel(estimate, truth):
     return abs(estimate - truth) / truth
 
 
+def _true_leaf_count(truth):
+    """The truth's leaves, a compound leaf (laminae on one petiole) counted once."""
+    return traits.traits_from_truth(truth).leaf_count
+
+
 def _miss(*ids):
     return [pytest.param(*i, marks=pytest.mark.xfail(strict=True, reason=NOT_YET)) for i in ids]
 
@@ -121,11 +127,11 @@ def test_height_from_a_realistic_one_degree_scan_within_five_percent(name):
     assert _rel(est.height_m, truth["height_m"]) <= 0.05
 
 
-@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12"] + _miss(("rosette30",), ("dicot",))
+@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "dicot"] + _miss(("rosette30",))
                          + _small())
 def test_leaf_count_from_an_ideal_scan_within_twenty_percent(name):
     est, truth = _scan(name, *IDEAL)
-    assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.20
+    assert _rel(est.leaf_count, _true_leaf_count(truth)) <= 0.20
 
 
 @pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",))
@@ -136,12 +142,47 @@ def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
 
 
 # The maize (11 for 9) and the wheat (13 for 16) meet the count by number only: 0 and
-# 1 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md).
-@pytest.mark.parametrize("name", ["maize", "wheat"] + _miss(("rosette12",), ("rosette30",), ("dicot",))
+# 1 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md);
+# so does the dicot (11 for 8: no leaflets grouped, its leaves split in two or three).
+@pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",))
                          + _small("rosette3"))
 def test_leaf_count_from_a_realistic_scan_within_forty_percent(name):
     est, truth = _scan(name, *REALISTIC)
-    assert _rel(est.leaf_count, len(truth["leaves"])) <= 0.40
+    assert _rel(est.leaf_count, _true_leaf_count(truth)) <= 0.40
+
+
+# The laminae, each leaflet counted: the dicot's 24 (the other plants' laminae are their
+# leaves). Held to the leaf count's targets, not met: 19 ideal (the top leaves' leaflets
+# merge), 11 realistic.
+@pytest.mark.parametrize("setting, target", [
+    pytest.param(IDEAL, 0.20, marks=pytest.mark.xfail(strict=True, reason=NOT_YET)),
+    pytest.param(REALISTIC, 0.40, marks=pytest.mark.xfail(strict=True, reason=NOT_YET))])
+def test_the_dicots_lamina_count(setting, target):
+    est, truth = _scan("dicot", *setting)
+    assert traits.traits_from_truth(truth).lamina_count == len(truth["leaves"]) == 24
+    assert _rel(est.lamina_count, 24) <= target
+
+
+def test_an_ideal_dicots_leaves_are_its_true_compound_leaves():
+    # Leaflets hanging from one stalk out of the stem's column are one leaf: the 19
+    # laminae found make 8 leaves, each all of one true leaf's points (one petiole's
+    # laminae), each true leaf found once. On every one of the 9 shifted grids: 8.
+    est, truth = _scan("dicot", *IDEAL)
+    assert est.leaf_count == _true_leaf_count(truth) == 8 and set(est.leaf_counts_over_grids) == {8}
+    assert est.lamina_count > est.leaf_count
+    assert [lf.group for lf in est.leaves] and {lf.group for lf in est.leaves} == set(range(8))
+    points, _ = _cloud("dicot", *IDEAL)
+    seg = traits.segment_for_traits(points)
+    true_lamina = procedural_leaf_labels(seg.points, PLANTS["dicot"]())
+    petiole = np.array([lf["petiole"] for lf in truth["leaves"]])
+    groups = traits.leaf_groups_of(seg)
+    owners = []
+    for g in range(8):
+        member = np.isin(seg.leaf_label, [i for i, x in enumerate(groups) if x == g])
+        hit = true_lamina[member]
+        owners.append(set(petiole[hit[hit >= 0]].tolist()))
+    assert all(len(o) == 1 for o in owners), owners
+    assert sorted(min(o) for o in owners) == list(range(8))
 
 
 @pytest.mark.parametrize("name", ["maize", "dicot"] + _miss(("wheat",), ("rosette12",), ("rosette30",))

@@ -160,7 +160,10 @@ def cmd_traits(args: argparse.Namespace) -> int:
         bound = "<= " if any(not st.get("diameter_resolved", True) for st in out.get("stems", ())) else ""
         print(f"height {f(out['height_m'], 1e3, ' mm')}; stems {out['stem_count']}, diameter "
               f"{bound}{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}; "
-              f"leaves {out['leaf_count']}, area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
+              f"leaves {out['leaf_count']}"
+              + (f" ({out['lamina_count']} laminae)" if out.get("lamina_count", out["leaf_count"]) != out["leaf_count"]
+                 else "")
+              + f", area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
         print(f"points: {measured}")
         counts = out.get("leaf_counts_over_grids") or []
         areas = [a for a in out.get("leaf_areas_over_grids_m2") or [] if a is not None]

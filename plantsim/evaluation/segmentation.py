@@ -59,7 +59,14 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    leaf lengthwise, and each half grows its own tip. Two leaves whose midribs run
    side by side, parallel, offset within both leaves' surfaces and for at least
    three times their distance apart are joined (:func:`_merge_split_leaves`);
-   the joined leaf's width spans the hidden band.
+   the joined leaf's width spans the hidden band. Compound leaves: a leaf whose chain
+   meets another leaf's, not a stem, is a leaflet of that leaf when the junction lies
+   out of every stem's column by a bin or more and the chain from the stem up to it
+   narrows to a stalk (a petiole: a piece within an eighth of the branch's half-width,
+   or half a voxel, of the line through it); ``Segmentation.leaf_group`` numbers the
+   leaves, a compound leaf's leaflets sharing one (a maize leaf hanging from another's
+   chain where the stem's walk stopped meets it on the axis; a rosette's leaf lying on
+   another meets a lamina, not a stalk, except where occlusion leaves a strip of it).
 8. Surfaces: a leaf holds at least one point per point spacing along its midrib (a
    sampled surface does); a branch with fewer is a trail of mixed pixels behind a
    leaf's edge, of strays, or a filament thinner than the spacing (a tassel branch),
@@ -729,6 +736,9 @@ class Segmentation:
         sparse_branches: branches long enough to be leaves but holding fewer points
             than spacings along them (mixed-pixel trails, stray points, filaments
             thinner than the spacing): not counted, their points unlabelled.
+        leaf_group: per leaf (lamina) of ``leaf_midribs``, the leaf it belongs to,
+            numbered 0.. in order: the leaflets of one compound leaf share it (step 7
+            of the module docstring); empty means each lamina is its own leaf.
     """
 
     points: np.ndarray
@@ -742,6 +752,7 @@ class Segmentation:
     min_leaf_length_m: float
     link_m: float
     sparse_branches: int
+    leaf_group: tuple[int, ...] = ()
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
@@ -1120,6 +1131,45 @@ def _drop_leaves_without_surface(leaf_label: np.ndarray, midribs: list[np.ndarra
     return relabel[leaf_label], [midribs[i] for i in keep], len(midribs) - len(keep)
 
 
+def _remap_parents(old_label: np.ndarray, new_label: np.ndarray, old_parent: list[int],
+                   n_new: int) -> tuple[int, ...]:
+    """Each new leaf's parent leaf (-1: it hangs from a stem or from nothing), from the
+    chains' parents, after leaves were joined or dropped (labels ``old_label`` became
+    ``new_label``): a chain's parent is its nearest ancestor that became another leaf."""
+    n_old = len(old_parent)
+    new_of_old = np.full(n_old, -1, dtype=np.int64)
+    both = (old_label >= 0) & (new_label >= 0)
+    new_of_old[old_label[both]] = new_label[both]
+    parent = [-1] * n_new
+    for i in range(n_old):
+        j = int(new_of_old[i])
+        if j < 0 or parent[j] >= 0:
+            continue
+        a = old_parent[i]
+        while a >= 0 and int(new_of_old[a]) in (-1, j):
+            a = old_parent[a]
+        parent[j] = int(new_of_old[a]) if a >= 0 else -1
+    return tuple(parent)
+
+
+def _leaf_groups(parent: tuple[int, ...]) -> tuple[int, ...]:
+    """Each lamina's leaf, numbered 0.. in the order of the laminae: a lamina and the
+    laminae hanging from it (its parent, its parent's parent, ...) are one leaf."""
+    root = list(range(len(parent)))
+
+    def find(i: int) -> int:
+        while root[i] != i:
+            root[i] = root[root[i]]
+            i = root[i]
+        return i
+
+    for i, p in enumerate(parent):
+        if p >= 0:
+            root[find(i)] = find(p)
+    number: dict[int, int] = {}
+    return tuple(number.setdefault(find(i), len(number)) for i in range(len(parent)))
+
+
 def shifted_grid_offsets(n: int) -> np.ndarray:
     """``n`` grid offsets for :attr:`SegmentationSettings.grid_offset`, spread evenly.
 
@@ -1327,10 +1377,42 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
         stem_tops.append(centroid[top].tolist())
         axis_tracks.append(np.array(track))
 
+    def piece_width(q: int, below: int) -> float:
+        """How far piece ``q``'s nodes lie from the line through it towards ``below``."""
+        along = centroid[q] - centroid[below]
+        along /= max(float(np.linalg.norm(along)), 1e-300)
+        offset = nodes[piece_nodes(q)] - centroid[q]
+        return float(np.linalg.norm(offset - np.outer(offset @ along, along), axis=1).max())
+
+    def on_stalk(junction: int, chain: list[int]) -> bool:
+        """Whether a branch meeting another leaf's chain at ``junction`` is a leaflet of
+        that leaf (step 7 of the module docstring): the junction lies out of every stem's
+        column by a level-set bin or more, and the chain from the stem up to it narrows
+        to a stalk: a piece whose nodes lie within an eighth of the branch's half-width
+        (its widest piece's) of the line through it, or within half a voxel."""
+        if junction < 0 or is_stem_piece[junction] >= 0 or owner[junction] < 0 or not stems:
+            return False
+        out = min(_out_of_column(centroid[junction], st, track, column_margin)
+                  for st, track in zip(stems, axis_tracks))
+        if out < bin_w:
+            return False
+        widths, q = [], int(parent[junction])
+        while q >= 0 and is_stem_piece[q] < 0:
+            below = int(parent[q])
+            if below < 0:
+                break
+            widths.append(piece_width(q, below))
+            q = below
+        if not widths:
+            return False
+        branch = max(piece_width(c, int(parent[c])) for c in chain if parent[c] >= 0)
+        return min(widths) <= max(0.5 * v, 0.125 * branch)
+
     # Leaves: tips with a long enough branch, walked down to the stem.
     tips = [p for p in range(n_pieces) if not children[p] and is_stem_piece[p] < 0]
     owner = np.full(n_pieces, -1, dtype=np.int64)
     leaf_chains: list[list[int]] = []
+    chain_parent: list[int] = []
     for tip in sorted(tips, key=lambda p: -piece_dist[p]):
         chain = [tip]
         p = int(parent[tip])
@@ -1348,6 +1430,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
             continue  # a scan line seen apart from its leaf: it joins what it hangs from
         li = len(leaf_chains)
         owner[chain] = li
+        chain_parent.append(int(owner[junction]) if on_stalk(junction, chain) else -1)
         if junction >= 0:
             chain.append(junction)  # the midrib starts at the junction
         leaf_chains.append(chain[::-1])
@@ -1369,13 +1452,16 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
             pts, stem_label, leaf_label, stems, axis_tracks, margin=column_margin,
             link=2 * s.link_factor * v + 8 * scale.noise_m)
     midribs = [centroid[np.array(ch)] for ch in leaf_chains]
+    chain_label = leaf_label
     leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)
     leaf_label, midribs, n_sparse = _drop_leaves_without_surface(leaf_label, midribs,
                                                                  spacing=scale.spacing_m)
+    groups = _leaf_groups(_remap_parents(chain_label, leaf_label, chain_parent, len(midribs)))
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
     return Segmentation(points=pts, kept=kept, stem_label=stem_label, leaf_label=leaf_label,
                         stems=stems, stem_tops_m=np.array(stem_tops, dtype=np.float64).reshape(-1, 3),
                         leaf_midribs=tuple(midribs), scale=scale, min_leaf_length_m=float(min_leaf),
-                        link_m=float(s.link_factor * v), sparse_branches=n_sparse)
+                        link_m=float(s.link_factor * v), sparse_branches=n_sparse,
+                        leaf_group=groups)

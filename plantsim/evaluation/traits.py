@@ -58,10 +58,10 @@ logger = logging.getLogger(__name__)
 __all__ = [
     "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
     "TraitSettings", "axis_crowding", "compare_traits", "connected_components", "convex_hull_volume",
-    "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle", "leaf_length_width",
-    "leaf_noise_width", "on_file_grid", "plant_height",
+    "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle", "leaf_count_of",
+    "leaf_groups_of", "leaf_length_width", "leaf_noise_width", "on_file_grid", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
-    "traits_from_mesh", "traits_from_truth",
+    "traits_from_mesh", "traits_from_truth", "true_leaf_groups",
 ]
 
 _NAN = float("nan")
@@ -199,7 +199,7 @@ class StemDistance:
 
 @dataclasses.dataclass(frozen=True)
 class Leaf:
-    """One leaf.
+    """One lamina: a simple leaf's blade, or one leaflet of a compound leaf.
 
     Attributes:
         index: order in the plant (truth) or of detection (cloud).
@@ -214,6 +214,9 @@ class Leaf:
         width_resolved: False when ``noise_width_m`` is at least 45 % of ``width_m``:
             the width, and the area built from it, read the noise's spread (a strip
             read that wide reads 23 % or more wide); None when not checked.
+        group: the leaf this lamina belongs to, 0 to ``leaf_count - 1``: the leaflets
+            of one compound leaf (laminae on one petiole) share it, a simple leaf has
+            its own.
     """
 
     index: int
@@ -224,6 +227,7 @@ class Leaf:
     inclination_deg: float = _NAN
     noise_width_m: float = _NAN
     width_resolved: bool | None = None
+    group: int = -1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -233,7 +237,12 @@ class PlantTraits:
     Aggregates: ``stem_diameter_m`` is the mean over stems; ``mean_stem_distance_m``
     the mean over all pairs of stems; ``mean_nearest_stem_distance_m`` the mean, over
     stems, of the distance to the nearest other stem; ``leaf_width_m`` and
-    ``leaf_length_m`` the largest over leaves. ``leaf_counts_over_grids``,
+    ``leaf_length_m`` the largest over leaves. ``leaf_count`` counts leaves as a
+    botanist does, a compound leaf (a trifoliate bean leaf: three leaflets on one
+    petiole) once; ``lamina_count`` counts its leaflets, and ``leaves`` and the
+    per-leaf tuples (``leaf_lengths_m``, ...) hold one entry per lamina, its
+    ``Leaf.group`` the leaf it belongs to. For simple leaves the two counts agree.
+    ``leaf_counts_over_grids``,
     ``leaf_areas_over_grids_m2`` and ``stem_heights_over_grids_m``: the leaf count, leaf
     area and stem height on each shifted grid the organs were segmented on
     (:attr:`TraitSettings.shifted_grids`), the first the grid anchored on the origin
@@ -256,6 +265,7 @@ class PlantTraits:
     stem_height_m: float = _NAN
     leaf_count: int = 0
     leaf_area_m2: float = _NAN
+    lamina_count: int = 0
     leaf_lengths_m: tuple[float, ...] = ()
     leaf_widths_m: tuple[float, ...] = ()
     leaf_areas_m2: tuple[float, ...] = ()
@@ -930,6 +940,18 @@ def on_file_grid(points: np.ndarray) -> np.ndarray:
     return np.round(points / LAS_SCALE_M) * LAS_SCALE_M
 
 
+def leaf_groups_of(seg: "segmentation.Segmentation") -> tuple[int, ...]:
+    """Each found lamina's leaf (:attr:`plantsim.evaluation.segmentation.Segmentation.leaf_group`;
+    each lamina its own leaf when the segmentation gives no groups)."""
+    n = len(seg.leaf_midribs)
+    return tuple(seg.leaf_group) if len(seg.leaf_group) == n else tuple(range(n))
+
+
+def leaf_count_of(seg: "segmentation.Segmentation") -> int:
+    """The leaves a segmentation found, a compound leaf counted once."""
+    return len(set(leaf_groups_of(seg)))
+
+
 class _Grids(typing.NamedTuple):
     """The organs of a cloud on its shifted grids (:func:`_segment_above`)."""
 
@@ -959,7 +981,7 @@ def _segment_above(pts: np.ndarray, s: TraitSettings) -> _Grids:
     grids = segmentation.segment_on_shifted_grids(
         above, settings=segmentation.SegmentationSettings(base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter),
         offsets=segmentation.shifted_grid_offsets(s.shifted_grids))
-    counts = np.array([len(g.leaf_midribs) for g in grids])
+    counts = np.array([leaf_count_of(g) for g in grids])
     areas = np.array([sum(_leaf_measures(g.points[g.leaf_label == i], m, link=g.link_m)[2]
                           for i, m in enumerate(g.leaf_midribs)) if len(g.leaf_midribs) else _NAN
                       for g in grids], dtype=np.float64)
@@ -1093,6 +1115,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                          "base slices (no ring fits), an upper bound")
     pairs, mean_pair, mean_nn = stem_distances(stems)
     leaves: list[Leaf] = []
+    groups = leaf_groups_of(seg)
     for i, midrib in enumerate(seg.leaf_midribs):
         member = seg.leaf_label == i
         lp = seg.points[member]
@@ -1102,7 +1125,14 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                     else bool(noise_width < _RESOLVED_NOISE_SHARE * width))
         leaves.append(Leaf(index=i, length_m=length, width_m=width, n_points=int(len(lp)),
                            area_m2=area, inclination_deg=incl, noise_width_m=noise_width,
-                           width_resolved=resolved))
+                           width_resolved=resolved, group=groups[i]))
+    n_leaves = len(set(groups))
+    if n_leaves < len(leaves):
+        compound = sorted({g for g in groups if groups.count(g) > 1})
+        notes.append(f"{len(compound)} compound lea{'f' if len(compound) == 1 else 'ves'} (several laminae "
+                     f"on one stalk out of the stem's column): {len(leaves)} laminae make "
+                     f"{n_leaves} leaves; leaf_count counts a compound leaf once, lamina_count every "
+                     "lamina, and the per-leaf lengths, widths, areas and inclinations are per lamina")
     if seg.sparse_branches:
         notes.append(f"{seg.sparse_branches} branch{'es' if seg.sparse_branches > 1 else ''} long enough to be "
                      "a leaf not counted as leaves: each holds fewer points than there are point spacings "
@@ -1163,8 +1193,9 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         projected_area_xy_m2=projected_area_xy(above, cell=cell),
         stem_count=len(stems),
         stem_height_m=stem_height,
-        leaf_count=len(leaves),
+        leaf_count=n_leaves,
         leaf_area_m2=float(sum(lf.area_m2 for lf in leaves)) if leaves else _NAN,
+        lamina_count=len(leaves),
         leaf_lengths_m=tuple(lf.length_m for lf in leaves),
         leaf_widths_m=tuple(lf.width_m for lf in leaves),
         leaf_areas_m2=tuple(lf.area_m2 for lf in leaves),
@@ -1236,13 +1267,38 @@ def _num(truth: Mapping[str, Any], key: str, where: str = "truth") -> float:
         raise ValueError(f"{where}[{key!r}] must be a number, got {value!r}") from None
 
 
+def true_leaf_groups(leaves: Any) -> tuple[int, ...]:
+    """Each truth lamina's leaf, numbered 0.. in order: laminae that give the same
+    integer ``petiole`` are the leaflets of one compound leaf; one without it is a leaf.
+
+    Args:
+        leaves: the truth's ``leaves`` list (dicts).
+
+    Returns:
+        One group per lamina; the number of distinct groups is the leaf count.
+
+    Raises:
+        ValueError: a ``petiole`` that is not an integer.
+    """
+    number: dict[Any, int] = {}
+    out = []
+    for i, lf in enumerate(leaves):
+        petiole = lf.get("petiole") if isinstance(lf, Mapping) else None
+        if petiole is not None and (isinstance(petiole, bool) or not isinstance(petiole, (int, np.integer))):
+            raise ValueError(f"truth['leaves'][{i}]['petiole'] must be an integer, got {petiole!r}")
+        out.append(number.setdefault(("lamina", i) if petiole is None else ("petiole", int(petiole)), len(number)))
+    return tuple(out)
+
+
 def traits_from_truth(truth: Mapping[str, Any]) -> PlantTraits:
     """Traits from a bundled plant's exact-traits JSON (already parsed into a dict).
 
     Expected keys (metres): ``height_m`` (required), ``stems`` (list of ``index``,
     ``base_xy_m``, ``diameter_m``), ``stem_diameter_m``, ``stem_distances_m`` (list of
     ``stems`` [i, j], ``distance_m``), ``leaves`` (list of ``index``, ``length_m``,
-    ``width_m``). Missing optional keys give NaN. Aggregates follow
+    ``width_m``, and ``petiole``, an integer, for the leaflets of compound leaves: laminae
+    with the same ``petiole`` are one leaf, a lamina without it is a leaf of its own).
+    Missing optional keys give NaN. Aggregates follow
     :class:`PlantTraits` definitions, recomputed from the lists so that cloud and
     truth use one definition; where the file's own aggregate (``stem_diameter_m``,
     ``mean_stem_distance_m``, ``leaf_width_m``, ``leaf_length_m``) disagrees, a
@@ -1279,13 +1335,16 @@ def traits_from_truth(truth: Mapping[str, Any]) -> PlantTraits:
         mean_pair = float(np.mean([p.distance_m for p in pairs]))
     else:
         pairs, mean_pair, mean_nn = stem_distances(stems)
+    laminae = list(truth.get("leaves") or ())
+    groups = true_leaf_groups(laminae)
     leaves = tuple(
         Leaf(
             index=int(lf.get("index", i)),
             length_m=_num(lf, "length_m", f"truth['leaves'][{i}]"),
             width_m=_num(lf, "width_m", f"truth['leaves'][{i}]"),
+            group=groups[i],
         )
-        for i, lf in enumerate(truth.get("leaves") or ())
+        for i, lf in enumerate(laminae)
     )
     traits = PlantTraits(
         height_m=_num(truth, "height_m"),
@@ -1301,8 +1360,9 @@ def traits_from_truth(truth: Mapping[str, Any]) -> PlantTraits:
         projected_area_xy_m2=_num(truth, "projected_area_xy_m2"),
         stem_count=len(stems),
         stem_height_m=max((_num(st, "height_m") for st in truth.get("stems") or ()), default=_NAN),
-        leaf_count=len(leaves),
+        leaf_count=len(set(groups)),
         leaf_area_m2=_num(truth, "leaf_area_m2"),
+        lamina_count=len(leaves),
         leaf_lengths_m=tuple(lf.length_m for lf in leaves),
         leaf_widths_m=tuple(lf.width_m for lf in leaves),
     )
@@ -1425,7 +1485,7 @@ def compare_traits(estimate: PlantTraits, reference: PlantTraits) -> TraitCompar
             ref = reference.stems[j]
             errors.append(trait_error(f"stem[{ref.index}].diameter_m", estimate.stems[i].diameter_m, ref.diameter_m))
             errors.append(trait_error(f"stem[{ref.index}].center_offset_m", cost[i, j], 0.0))
-    for name in ("stem_count", "leaf_count"):
+    for name in ("stem_count", "leaf_count", "lamina_count"):
         s_val, r_val = getattr(estimate, name), getattr(reference, name)
         if r_val:
             errors.append(trait_error(name, s_val, r_val, unit="1"))
