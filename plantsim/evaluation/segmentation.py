@@ -1152,24 +1152,6 @@ def _remap_parents(old_label: np.ndarray, new_label: np.ndarray, old_parent: lis
     return tuple(parent)
 
 
-def _leaf_groups(parent: tuple[int, ...]) -> tuple[int, ...]:
-    """Each lamina's leaf, numbered 0.. in the order of the laminae: a lamina and the
-    laminae hanging from it (its parent, its parent's parent, ...) are one leaf."""
-    root = list(range(len(parent)))
-
-    def find(i: int) -> int:
-        while root[i] != i:
-            root[i] = root[root[i]]
-            i = root[i]
-        return i
-
-    for i, p in enumerate(parent):
-        if p >= 0:
-            root[find(i)] = find(p)
-    number: dict[int, int] = {}
-    return tuple(number.setdefault(find(i), len(number)) for i in range(len(parent)))
-
-
 def shifted_grid_offsets(n: int) -> np.ndarray:
     """``n`` grid offsets for :attr:`SegmentationSettings.grid_offset`, spread evenly.
 
@@ -1456,7 +1438,10 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)
     leaf_label, midribs, n_sparse = _drop_leaves_without_surface(leaf_label, midribs,
                                                                  spacing=scale.spacing_m)
-    groups = _leaf_groups(_remap_parents(chain_label, leaf_label, chain_parent, len(midribs)))
+    # A lamina and those hanging from it are one leaf, numbered by its first lamina.
+    parents = _remap_parents(chain_label, leaf_label, chain_parent, len(midribs))
+    links = np.array([(i, p) for i, p in enumerate(parents) if p >= 0], dtype=np.int64).reshape(-1, 2)
+    groups = tuple(int(g) for g in _components(len(midribs), np.vstack([links, links[:, ::-1]])))
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
