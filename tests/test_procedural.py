@@ -509,6 +509,9 @@ def test_cli_plant_make_writes_mesh_and_truth(tmp_path, capsys):
     assert truth_from_labelled_mesh(out, n_samples_per_m2=0)["leaf_count"] == 4
     assert main(["plant", "make", "maize", "-o", str(tmp_path / "m.stl")]) == 0
     assert (tmp_path / "m.traits.json").is_file()
+    # Trifoliate leaves count once, as the traits count them; their laminae said beside.
+    assert main(["plant", "make", "dicot", "--set", "n_leaves=4", "-o", str(tmp_path / "t.obj")]) == 0
+    assert "4 leaves (12 laminae)" in capsys.readouterr().out
     assert main(["plant", "make", "dicot", "--set", "leaflets=2", "-o", str(out)]) == 2
     assert "leaflets must be 1 (simple leaves) or 3 (trifoliate), got 2" in capsys.readouterr().err
     assert main(["plant", "make", "dicot", "-o", str(tmp_path / "x.ply")]) == 2

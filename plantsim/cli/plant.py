@@ -79,8 +79,13 @@ def cmd_plant_make(args: argparse.Namespace) -> int:
     args.output.write_bytes(data)
     traits_path.write_text(procedural.traits_to_json(plant), encoding="utf-8")
     t = plant.traits
+    from plantsim.evaluation.traits import true_leaf_groups
+
+    # Leaves as the traits count them: a compound leaf (laminae on one petiole) once.
+    n_leaves, n_laminae = len(set(true_leaf_groups(t["leaves"]))), len(t["leaves"])
     print(f"wrote {args.output} ({len(plant.faces)} faces) and {traits_path}: height "
-          f"{t['height_m'] * 1e3:.0f} mm, {len(t['stems'])} stem(s), {len(t['leaves'])} leaves, "
+          f"{t['height_m'] * 1e3:.0f} mm, {len(t['stems'])} stem(s), {n_leaves} leaves"
+          f"{f' ({n_laminae} laminae)' if n_laminae != n_leaves else ''}, "
           f"leaf area {t['leaf_area_m2'] * 1e4:.1f} cm^2")
     from plantsim.plant.mesh import plant_from_arrays
     from plantsim.rig.fit import rig_fit_warnings
