@@ -1441,7 +1441,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     # A lamina and those hanging from it are one leaf, numbered by its first lamina.
     parents = _remap_parents(chain_label, leaf_label, chain_parent, len(midribs))
     links = np.array([(i, p) for i, p in enumerate(parents) if p >= 0], dtype=np.int64).reshape(-1, 2)
-    groups = tuple(int(g) for g in _components(len(midribs), np.vstack([links, links[:, ::-1]])))
+    groups = tuple(int(g) for g in _components(len(midribs), links))
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))

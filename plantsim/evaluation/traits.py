@@ -1128,8 +1128,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                            width_resolved=resolved, group=groups[i]))
     n_leaves = len(set(groups))
     if n_leaves < len(leaves):
-        compound = sorted({g for g in groups if groups.count(g) > 1})
-        notes.append(f"{len(compound)} compound lea{'f' if len(compound) == 1 else 'ves'} (several laminae "
+        compound = len({g for g in groups if groups.count(g) > 1})
+        notes.append(f"{compound} compound lea{'f' if compound == 1 else 'ves'} (several laminae "
                      f"on one stalk out of the stem's column): {len(leaves)} laminae make "
                      f"{n_leaves} leaves; leaf_count counts a compound leaf once, lamina_count every "
                      "lamina, and the per-leaf lengths, widths, areas and inclinations are per lamina")
