@@ -92,7 +92,9 @@ def main() -> None:
             counts = est.leaf_counts_over_grids
             areas = [100 * (a / tr["leaf_area_m2"] - 1) for a in est.leaf_areas_over_grids_m2 if a == a]
             stem_heights = [h for h in est.stem_heights_over_grids_m if h == h]
-            print(f"{'':16s} {'':7s}  over {len(counts)} shifted grids: leaves {min(counts)}-{max(counts)}"
+            heights = [100 * (h / tr["height_m"] - 1) for h in est.heights_over_grids_m]
+            print(f"{'':16s} {'':7s}  over {len(counts)} shifted grids: height {min(heights):+.1f}..{max(heights):+.1f} %, "
+                  f"leaves {min(counts)}-{max(counts)}"
                   + (f", area {min(areas):+.0f}..{max(areas):+.0f} %" if areas else "")
                   + (f", stem height {_mm(min(stem_heights))}-{_mm(max(stem_heights))} mm" if stem_heights else ""),
                   flush=True)

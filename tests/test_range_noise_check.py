@@ -194,7 +194,11 @@ def test_traits_of_a_rosette_scanned_edge_on_repeat_the_rigs_warning(tmp_path, c
         counts = data["leaf_counts_over_grids"]
         assert len(counts) == 9 and data["leaf_count"] == sorted(counts)[4]
         assert len(data["leaf_areas_over_grids_m2"]) == 9
-        assert f"over 9 shifted voxel grids: leaves {min(counts)}-{max(counts)}" in printed
+        # The plant height's spread over the grids' voxels leads the line; the height is the origin's.
+        heights = data["heights_over_grids_m"]
+        assert len(heights) == 9 and heights[0] == data["height_m"]
+        assert (f"over 9 shifted voxel grids: height {1e3 * min(heights):.4g}-{1e3 * max(heights):.4g} mm, "
+                f"leaves {min(counts)}-{max(counts)}") in printed
         # The stem height's spread over the grids, printed where a stem is found: in the
         # .las cloud's plant points (the crown); the .pts cloud, disk points and all,
         # reads no stem, and no stem height is printed.
@@ -204,7 +208,8 @@ def test_traits_of_a_rosette_scanned_edge_on_repeat_the_rigs_warning(tmp_path, c
         if data["stem_count"]:
             assert None not in stem_heights and data["stem_height_m"] in stem_heights
             assert spread_line.endswith(f", stem height {1e3 * min(stem_heights):.4g}-"
-                                        f"{1e3 * max(stem_heights):.4g} mm (the median grid's are above)")
+                                        f"{1e3 * max(stem_heights):.4g} mm (above: the origin grid's height, "
+                                        "the median grid's organs)")
         else:
             assert stem_heights == [None] * 9 and "stem height" not in spread_line
     # One grid: the origin's, no spread printed; an even number is refused before any work.

@@ -92,6 +92,43 @@ def test_traits_keep_the_grid_of_the_median_leaf_count_and_carry_every_grids():
     assert one.leaf_counts_over_grids == t.leaf_counts_over_grids[:1]
     assert one.leaf_areas_over_grids_m2 == t.leaf_areas_over_grids_m2[:1]
     assert one.stem_heights_over_grids_m == t.stem_heights_over_grids_m[:1]
+    assert one.heights_over_grids_m == t.heights_over_grids_m[:1] == (t.height_m,)
+
+
+def test_the_plant_height_on_every_grids_voxels():
+    # The height reported is the origin grid's; each grid's is robust_height with the voxel
+    # grid shifted as that grid's voxels are (the same offsets as the segmentation's).
+    pts = _plant()
+    t = traits.extract_traits(pts)
+    assert len(t.heights_over_grids_m) == 9 and t.heights_over_grids_m[0] == t.height_m
+    on_grid = traits.on_file_grid(pts)
+    above = on_grid[traits._above_mask(on_grid, traits.TraitSettings())]
+    scale = segmentation.segment_on_shifted_grids(above, offsets=segmentation.shifted_grid_offsets(1))[0].scale
+    for o, h in zip(segmentation.shifted_grid_offsets(9), t.heights_over_grids_m):
+        assert h == traits.robust_height(above, scale=scale, min_points=traits.top_voxel_min_points(scale),
+                                         grid_offset=tuple(o[:3]))
+    assert t.to_dict()["heights_over_grids_m"] == list(t.heights_over_grids_m)
+
+
+def test_robust_height_moves_with_its_voxel_grid_by_less_than_a_voxel():
+    # A column of points every mm from 0.5 to 299.5 mm and a stray point 5 cm above it,
+    # voxels of 10 mm: the top is the centroid of the highest voxel holding 2 points,
+    # which depends on where the grid starts, always within a voxel below the top point.
+    body = np.column_stack([np.zeros(300), np.zeros(300), 0.0005 + 0.001 * np.arange(300)])
+    pts = np.vstack([body, [[0.0, 0.0, 0.35]]])
+    cell = 0.01
+    expected = {0.0: 0.295,     # voxel 290-300 mm: its 10 points
+                0.25: 0.2965,   # voxel 292.5-302.5 mm: 7 points
+                0.5: 0.2975}    # voxel 295-305 mm: 5 points
+    for z0, top in expected.items():
+        h = traits.robust_height(pts, cell=cell, min_points=2, grid_offset=(0.3, 0.6, z0))
+        assert h == pytest.approx(top, abs=1e-9)
+        assert 0.2995 - cell < h < 0.2995
+    assert traits.robust_height(pts, cell=cell, min_points=2) == pytest.approx(0.295, abs=1e-9)
+    for bad in ((0.0, 0.0, 1.0), (0.0, -0.1, 0.0), (0.0, 0.0)):
+        with pytest.raises(ValueError, match="grid_offset must be 3 fractions of a cell"):
+            traits.robust_height(pts, cell=cell, min_points=2, grid_offset=bad)
+
 
 
 def test_traits_carry_the_stem_height_every_grid_reads():

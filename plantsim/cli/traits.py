@@ -170,12 +170,16 @@ def cmd_traits(args: argparse.Namespace) -> int:
         if len(counts) > 1:
             # The segmentation's own uncertainty: what the other voxel grids read.
             spread = f"leaves {min(counts)}-{max(counts)}"
+            heights = [h for h in out.get("heights_over_grids_m") or [] if h is not None]
+            if heights:
+                spread = f"height {f(min(heights), 1e3)}-{f(max(heights), 1e3, ' mm')}, " + spread
             if areas:
                 spread += f", area {f(min(areas), 1e4)}-{f(max(areas), 1e4, ' cm^2')}"
             stem_heights = [h for h in out.get("stem_heights_over_grids_m") or [] if h is not None]
             if stem_heights:
                 spread += f", stem height {f(min(stem_heights), 1e3)}-{f(max(stem_heights), 1e3, ' mm')}"
-            print(f"over {len(counts)} shifted voxel grids: {spread} (the median grid's are above)")
+            print(f"over {len(counts)} shifted voxel grids: {spread} (above: the origin grid's height, "
+                  "the median grid's organs)")
         for note in out["notes"]:
             print(f"note: {note}")
         for warning in rig_warnings or ():
