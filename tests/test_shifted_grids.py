@@ -117,9 +117,10 @@ def test_robust_height_moves_with_its_voxel_grid_by_less_than_a_voxel():
     body = np.column_stack([np.zeros(300), np.zeros(300), 0.0005 + 0.001 * np.arange(300)])
     pts = np.vstack([body, [[0.0, 0.0, 0.35]]])
     cell = 0.01
+    # Voxel faces where z + offset * cell is a multiple of the cell, as the segmentation's.
     expected = {0.0: 0.295,     # voxel 290-300 mm: its 10 points
-                0.25: 0.2965,   # voxel 292.5-302.5 mm: 7 points
-                0.5: 0.2975}    # voxel 295-305 mm: 5 points
+                0.3: 0.2985,    # voxel 297-307 mm: 3 points
+                0.6: 0.297}     # voxel 294-304 mm: 6 points
     for z0, top in expected.items():
         h = traits.robust_height(pts, cell=cell, min_points=2, grid_offset=(0.3, 0.6, z0))
         assert h == pytest.approx(top, abs=1e-9)

@@ -333,12 +333,19 @@ def kept_points(points: np.ndarray, *, workers: int = -1) -> tuple[np.ndarray, C
     return kept, estimate_scale(pts[kept], workers=workers)
 
 
-def voxel_centroids(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+def voxel_centroids(points: np.ndarray, cell: float,
+                    grid_offset: Any = (0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """Centroid of each occupied voxel of side ``cell`` and each point's voxel.
+
+    ``grid_offset``: x, y, z fractions of ``cell`` the grid is shifted by (voxel faces
+    where ``point + offset * cell`` is a multiple of ``cell``), as a shifted grid's
+    voxels are (:attr:`SegmentationSettings.grid_offset`); zeros: anchored on the origin.
 
     Returns:
         (centroids (m, 3) float64, inverse (n,) int64 with points[i] in voxel inverse[i]).
     """
+    shift = np.asarray(grid_offset, dtype=np.float64) * cell
+    points = points + shift
     ijk = np.floor(points / cell).astype(np.int64)
     ijk -= ijk.min(axis=0)
     dims = ijk.max(axis=0) + 1
@@ -354,7 +361,7 @@ def voxel_centroids(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.nda
     counts = np.bincount(inverse, minlength=m).astype(np.float64)
     centroids = np.column_stack(
         [np.bincount(inverse, weights=points[:, j], minlength=m) / counts for j in range(3)])
-    return centroids, inverse
+    return centroids - shift, inverse
 
 
 # --------------------------------------------------------------------------
@@ -1241,9 +1248,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
                      s: SegmentationSettings) -> Segmentation:
     """The skeleton and organs of the kept points ``pts`` on one grid (``s.grid_offset``)."""
     v = scale.voxel_m
-    shift = np.asarray(s.grid_offset[:3], dtype=np.float64) * v
-    nodes, inverse = voxel_centroids(pts + shift, v)
-    nodes = nodes - shift
+    nodes, inverse = voxel_centroids(pts, v, s.grid_offset[:3])
     graph = _graph(nodes, s.link_factor * v, spacing=scale.spacing_m)
     # Roots: nodes in the lowest slices near each stem base (or the lowest nodes).
     z = nodes[:, 2]
