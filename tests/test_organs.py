@@ -472,7 +472,8 @@ def test_a_sensor_known_noise_free_lets_two_points_set_the_top_of_a_cloud_that_l
     """Given the range noise, the top voxel asks for the points of the smaller of the sensor's
     noise and the cloud's apparent one: a noise-free sensor reads a top that looks noisy (to
     the plane fit, thin crossing organs do) as a noise-free cloud's, with 2 points; a noisy
-    sensor changes nothing."""
+    sensor keeps the cloud's count (4), and its points are moved along their beams first
+    (traits.beam_median_points), which reads the sheet's top nearer its 0.2 m."""
     gained = []
     for seed in range(3):
         cloud = sheet_on_a_stem(0.003, seed)
@@ -481,7 +482,7 @@ def test_a_sensor_known_noise_free_lets_two_points_set_the_top_of_a_cloud_that_l
         loud = np.zeros_like(cloud)
         loud[:, 2] = 0.01  # 10 mm along vertical beams
         noisy = traits.extract_traits(cloud, range_noise_m=loud)
-        assert noisy.height_m == unknown.height_m
+        assert abs(noisy.height_m - 0.2) < abs(unknown.height_m - 0.2)
         gained.append(clean.height_m - unknown.height_m)
         # The output says which noise set the top voxel when the sensor's did.
         said = [n for n in clean.notes if n.startswith("height: the top voxel needed 2 points")]
