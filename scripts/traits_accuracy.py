@@ -15,6 +15,8 @@ lost to the stem and noise widening the rest.
     python scripts/traits_accuracy.py            # both settings
     python scripts/traits_accuracy.py --step 2   # a quick look at 2 deg
     python scripts/traits_accuracy.py --range-filter   # realistic scans denoised first
+    python scripts/traits_accuracy.py --fit-rig  # plants the default rig warns about on the
+                                                 # rig --fit-rig picks (the rosettes)
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from plantsim.evaluation.evaluate import scan_range_noise
 from plantsim.evaluation.organ_match import match_procedural_leaves
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
+from plantsim.rig.fit import fit_rig, rig_fit_warnings
 from plantsim.scan.config import RangeFilter, RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
@@ -50,6 +53,9 @@ def main() -> None:
     parser.add_argument("--step", type=float, help="one step for both settings (default 0.5 ideal, 1 realistic)")
     parser.add_argument("--range-filter", action="store_true",
                         help="denoise the realistic scans' ranges first (plantsim.cloud.denoise, default window)")
+    parser.add_argument("--fit-rig", action="store_true",
+                        help="scan each plant the default rig warns about on the rig plantsim.rig.fit.fit_rig "
+                             "picks for it, as `plantsim scan --fit-rig` does (the rosettes: LiDAR raised)")
     args = parser.parse_args()
     logging.disable(logging.WARNING)
     plants = (("maize 9 leaves", make_maize(seed=0)), ("wheat 4 tillers", make_wheat(seed=0)),
@@ -68,7 +74,14 @@ def main() -> None:
             config = RunConfig(ideal=setting == "ideal", scan=StepScan(step_deg=step))
             if args.range_filter and setting == "realistic":
                 config = config.replace(range_filter=RangeFilter(enabled=True))
-            result = run_scan(config, plant=plant_from_arrays(pl.vertices_m, pl.faces))
+            plant = plant_from_arrays(pl.vertices_m, pl.faces)
+            fitted = ""
+            if args.fit_rig and rig_fit_warnings(plant, config.rig, config.lidar):
+                rig, _ = fit_rig(plant, config.rig, config.lidar)
+                config = config.replace(rig=rig)
+                fitted = (f" (fitted rig: LiDAR {rig.lidar_distance_m:.3f} m out, "
+                          f"{rig.lidar_height_m:.3f} m up, tilt {rig.tilt_deg:g} deg)")
+            result = run_scan(config, plant=plant)
             pts = result.cloud.plant_only().points_turntable
             est, tr = traits.extract_traits(pts, range_noise_m=scan_range_noise(result)[0]), pl.traits
             # Leaves as a botanist counts them: a compound leaf (laminae on one petiole) once.
@@ -88,7 +101,7 @@ def main() -> None:
                   f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm"
                   f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}, "
                   f"height {_mm(est.stem_height_m)}/{_mm(max(st['height_m'] for st in tr['stems']))} mm  "
-                  f"{time.perf_counter() - t0:.1f} s", flush=True)
+                  f"{time.perf_counter() - t0:.1f} s{fitted}", flush=True)
             counts = est.leaf_counts_over_grids
             areas = [100 * (a / tr["leaf_area_m2"] - 1) for a in est.leaf_areas_over_grids_m2 if a == a]
             stem_heights = [h for h in est.stem_heights_over_grids_m if h == h]

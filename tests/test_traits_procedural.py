@@ -30,6 +30,9 @@ most of its points (97 % of the ideal bean's within 6 mm of the axis), and found
 on the bean, 4 on the 3-leaf maize and rosette (the maize's stem, broken at its base,
 read as a leaf).
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
+Every plant is scanned on the default rig, which warns about the maize (their tops seen
+61-62 deg up) and the rosettes (flat, seen edge-on); ``scripts/traits_accuracy.py
+--fit-rig`` scans those on the rig ``--fit-rig`` picks (docs/traits.md: 10 misses for 11).
 
 Traits are measured on the LAS file's 0.01 mm grid, and the organs segmented on 9
 shifted voxel grids, the grid of the median leaf count kept (``TraitSettings.shifted_grids``):
@@ -50,6 +53,7 @@ import pytest
 
 from plantsim.cloud.export import read_cloud, write_cloud
 from plantsim.evaluation import traits
+from plantsim.evaluation.evaluate import scan_range_noise
 from plantsim.evaluation.organ_match import match_procedural_leaves, procedural_leaf_labels
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
@@ -72,6 +76,9 @@ IDEAL = (True, 0.5)
 REALISTIC = (False, 1.0)
 NOT_YET = "issue 13 target not met by the current segmentation (see the module docstring)"
 SMALL = ["maize3", "rosette3", "bean3"]
+# Per scan, each plant point's range noise along its beam (what `plantsim traits` reads
+# from a scan's sidecar), filled as the scans run.
+_RANGE_NOISE: dict = {}
 
 
 @functools.lru_cache(maxsize=None)
@@ -81,6 +88,7 @@ def _plant_cloud(name: str, ideal: bool, step_deg: float):
     try:
         result = run_scan(RunConfig(ideal=ideal, scan=StepScan(step_deg=step_deg)),
                           plant=plant_from_arrays(plant.vertices_m, plant.faces))
+        _RANGE_NOISE[(name, ideal, step_deg)] = scan_range_noise(result)[0]
         return result.cloud.plant_only(), plant.traits
     finally:
         logging.getLogger("plantsim").setLevel(logging.NOTSET)
@@ -125,6 +133,22 @@ def test_height_from_an_ideal_half_degree_scan_within_two_percent(name):
 def test_height_from_a_realistic_one_degree_scan_within_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.height_m, truth["height_m"]) <= 0.05
+
+
+@pytest.mark.parametrize("name", list(PLANTS))
+def test_a_realistic_height_given_the_range_noise_is_within_five_percent_on_every_grid(name):
+    # Given each point's range noise (as `plantsim traits` reads it from the sidecar), the
+    # points that can reach the top move along their beams first (traits.beam_median_points):
+    # every shifted grid reads within 3.3 % (scripts/traits_accuracy.py). With the points as
+    # measured the 3-leaf maize read 3.4-8.7 % low over the grids, and a voxel count alone
+    # cannot tell a top from the band its noise spreads it into.
+    points, truth = _cloud(name, *REALISTIC)
+    noise = _RANGE_NOISE[(name, *REALISTIC)]
+    assert noise.shape == points.shape
+    assert np.linalg.norm(noise, axis=1).min() >= 0.01  # at least the URG-04LX's 10 mm floor
+    est = traits.extract_traits(points, range_noise_m=noise)
+    assert len(est.heights_over_grids_m) == 9 and est.heights_over_grids_m[0] == est.height_m
+    assert max(_rel(h, truth["height_m"]) for h in est.heights_over_grids_m) <= 0.05
 
 
 @pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "dicot"] + _miss(("rosette30",))
