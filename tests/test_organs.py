@@ -487,7 +487,11 @@ def test_a_sensor_known_noise_free_lets_two_points_set_the_top_of_a_cloud_that_l
         # The output says which noise set the top voxel when the sensor's did.
         said = [n for n in clean.notes if n.startswith("height: the top voxel needed 2 points")]
         assert len(said) == 1 and "for the sensor's range noise (0 mm), not 4 " in said[0], clean.notes
-        assert not any(n.startswith("height:") for n in unknown.notes + noisy.notes)
+        assert not any(n.startswith("height: the top voxel") for n in unknown.notes + noisy.notes)
+        # Points moved for the height are said, with the height as measured beside it.
+        (moved,) = [n for n in noisy.notes if n.startswith("height:")]
+        assert "moved along their beams" in moved and f"{1e3 * unknown.height_m:.1f} mm with the points as measured" in moved
+        assert not any("moved along their beams" in n for n in unknown.notes + clean.notes)
     assert min(gained) >= 0 and np.mean(gained) > 0.001
 
 

@@ -2,10 +2,11 @@
 
 The cloud (LAS/LAZ/PLY/PCD/TXT, read by :func:`plantsim.cloud.export.read_cloud`) must
 be in the turntable frame, metres, z up, the plant base at ``--base-z``. When plantsim's
-sidecar is beside it (``CLOUD.json``, from ``plantsim scan``), the leaf widths are
-checked against the sensor's range noise along each point's beam (the rig's LiDAR pose
-and each point's turntable angle and intensity); the output says what they were checked
-against, or why not, and repeats what the scan said its rig could not do for the plant
+sidecar is beside it (``CLOUD.json``, from ``plantsim scan``), the sensor's range noise
+along each point's beam (the rig's LiDAR pose and each point's turntable angle and
+intensity) checks the leaf widths and moves the points that can reach the plant's top
+along their beams before the height is read (a note gives the height as measured too);
+the output says what that noise is, or why it is not known, and repeats what the scan said its rig could not do for the plant
 (``scan_rig_fit_warnings``: a flat plant's leaves seen edge-on, a top seen at grazing
 beams), which bounds what the traits can read.
 """

@@ -847,32 +847,44 @@ def heights_over_grids(points_turntable: Any, *, base_z: float = 0.0, cell: floa
     for offset in offsets:
         if offset.shape != (3,) or not np.all((offset >= 0) & (offset < 1)):
             raise ValueError(f"grid_offset must be 3 fractions of a cell in [0, 1), got {tuple(offset)!r}")
-    tops = _top_voxel_heights(pts, cell, min_points, offsets)
     if range_noise_m is not None:
         noise = np.asarray(range_noise_m, dtype=np.float64)
         if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
             raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
                              f"got {noise.shape}")
-        if np.any(noise != 0):
-            # Only points that can reach a top voxel once moved need moving: a point moves at
-            # most 3 sigma |d_z| in z, and a top voxel's points lie within a cell below its
-            # centroid. Widen the band until it holds every point that can reach the lowest
-            # top found; the heights are then those of the whole cloud moved.
-            reach_z = 3.0 * np.abs(noise[:, 2])
-            radius = 2.0 * scale.spacing_m
-            moved_pts = pts.copy()
-            done = np.zeros(len(pts), dtype=bool)
-            cut = min(tops) - cell
-            while True:
-                band = (pts[:, 2] + reach_z >= cut) & ~done
-                if band.any():
-                    moved_pts[band] = beam_median_points(pts, noise, radius_m=radius, moved=band)[band]
-                    done |= band
-                tops = _top_voxel_heights(moved_pts, cell, min_points, offsets)
-                if min(tops) - cell >= cut or done.all():
-                    break
-                cut = min(tops) - cell
+        range_noise_m = noise
+    tops, _, _ = _heights_moved_along_beams(pts, cell, min_points, offsets, range_noise_m,
+                                            2.0 * scale.spacing_m if scale is not None else 0.0)
     return tuple(top - base_z for top in tops)
+
+
+def _heights_moved_along_beams(pts: np.ndarray, cell: float, min_points: float, offsets: list[np.ndarray],
+                               noise: np.ndarray | None, radius_m: float
+                               ) -> tuple[list[float], list[float], int]:
+    """(tops with the points moved along their beams, tops as measured, points moved);
+    the two tops equal and 0 moved without noise (None or zeros)."""
+    raw = _top_voxel_heights(pts, cell, min_points, offsets)
+    if noise is None or not np.any(noise != 0):
+        return raw, raw, 0
+    # Only points that can reach a top voxel once moved need moving: a point moves at
+    # most 3 sigma |d_z| in z, and a top voxel's points lie within a cell below its
+    # centroid. Widen the band until it holds every point that can reach the lowest
+    # top found; the heights are then those of the whole cloud moved.
+    reach_z = 3.0 * np.abs(noise[:, 2])
+    moved_pts = pts.copy()
+    done = np.zeros(len(pts), dtype=bool)
+    tops = raw
+    cut = min(tops) - cell
+    while True:
+        band = (pts[:, 2] + reach_z >= cut) & ~done
+        if band.any():
+            moved_pts[band] = beam_median_points(pts, noise, radius_m=radius_m, moved=band)[band]
+            done |= band
+        tops = _top_voxel_heights(moved_pts, cell, min_points, offsets)
+        if min(tops) - cell >= cut or done.all():
+            break
+        cut = min(tops) - cell
+    return tops, raw, int(np.count_nonzero(np.any(moved_pts != pts, axis=1)))
 
 
 def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | None = None,
@@ -1217,6 +1229,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       smaller of the cloud's apparent noise and the sensor's (the median of the
       points' range noise): an ideal scan of thin organs looks noisy to a plane fit,
       and its sparse top (a wheat's ears) would otherwise need 4 points a voxel.
+      A note gives the points moved and the height with the points as measured.
       Read on the origin's voxel grid; ``heights_over_grids_m`` reads it on every
       shifted grid's voxels, the spread a grid's origin alone makes (the realistic
       1-degree scans of ``scripts/traits_accuracy.py``: -3.3..+2.0 % over all grids
@@ -1293,9 +1306,15 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                      f"noise the cloud shows a plane fit ({1e3 * seg.scale.noise_m:.2g} mm: structure the fit "
                      "reads as noise, such as thin organs crossing within its reach or mixed pixels)")
     # The plant height on every grid's voxels (the first, the origin's, is the one reported).
-    heights = heights_over_grids(above, base_z=s.base_z, scale=seg.scale, min_points=top_min_points,
-                                 grid_offsets=[o[:3] for o in segmentation.shifted_grid_offsets(s.shifted_grids)],
-                                 range_noise_m=noise_above)
+    tops, tops_measured, n_moved = _heights_moved_along_beams(
+        above, seg.scale.voxel_m, top_min_points,
+        [np.asarray(o[:3], dtype=np.float64) for o in segmentation.shifted_grid_offsets(s.shifted_grids)],
+        noise_above, 2.0 * seg.scale.spacing_m)
+    heights = tuple(top - s.base_z for top in tops)
+    if n_moved:
+        notes.append(f"height: {1e3 * heights[0]:.1f} mm, read with the {n_moved} points that can reach the "
+                     "top moved along their beams onto their neighbours' surface (by the range noise given; "
+                     f"{1e3 * (tops_measured[0] - s.base_z):.1f} mm with the points as measured)")
     height = heights[0]
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points,
