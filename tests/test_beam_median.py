@@ -70,6 +70,10 @@ def test_bad_beam_median_input_is_refused():
         traits.beam_median_points(pts, noise[:-1], radius_m=0.004)
     with pytest.raises(ValueError, match="radius_m must be a length > 0"):
         traits.beam_median_points(pts, noise, radius_m=0.0)
+    with pytest.raises(ValueError, match="gate_sigmas must be > 0"):
+        traits.beam_median_points(pts, noise, radius_m=0.004, gate_sigmas=0.0)
+    with pytest.raises(ValueError, match="moved must be one bool a point"):
+        traits.beam_median_points(pts, noise, radius_m=0.004, moved=np.ones(3, dtype=bool))
     bad = noise.copy()
     bad[3, 0] = np.nan
     with pytest.raises(ValueError, match="range_noise_m must be finite"):

@@ -6,9 +6,9 @@ sidecar is beside it (``CLOUD.json``, from ``plantsim scan``), the sensor's rang
 along each point's beam (the rig's LiDAR pose and each point's turntable angle and
 intensity) checks the leaf widths and moves the points that can reach the plant's top
 along their beams before the height is read (a note gives the height as measured too);
-the output says what that noise is, or why it is not known, and repeats what the scan said its rig could not do for the plant
-(``scan_rig_fit_warnings``: a flat plant's leaves seen edge-on, a top seen at grazing
-beams), which bounds what the traits can read.
+the output says what that noise is, or why it is not known, and repeats what the scan
+said its rig could not do for the plant (``scan_rig_fit_warnings``: a flat plant's
+leaves seen edge-on, a top seen at grazing beams), which bounds what the traits can read.
 """
 
 from __future__ import annotations

@@ -59,10 +59,9 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "CircleFit", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
-    "TraitSettings", "axis_crowding", "beam_median_points", "compare_traits", "connected_components", "convex_hull_volume",
-    "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle", "heights_over_grids",
-    "leaf_count_of",
-    "leaf_groups_of", "leaf_length_width", "leaf_noise_width", "on_file_grid", "plant_height",
+    "TraitSettings", "axis_crowding", "beam_median_points", "compare_traits", "connected_components",
+    "convex_hull_volume", "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle",
+    "heights_over_grids", "leaf_count_of", "leaf_groups_of", "leaf_length_width", "leaf_noise_width", "on_file_grid", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
     "traits_from_mesh", "traits_from_truth", "true_leaf_groups",
 ]
@@ -708,8 +707,13 @@ def top_voxel_min_points(scale: "segmentation.CloudScale") -> int:
     return 2 + round(2.0 * min(1.0, ratio))
 
 
+# How far along its beam a point's neighbours reach, in its noise's standard deviations
+# (beam_median_points), and so how far a point can move.
+_BEAM_GATE_SIGMAS = 3.0
+
+
 def beam_median_points(points_turntable: Any, range_noise_m: Any, *, radius_m: float,
-                       moved: Any = None, gate_sigmas: float = 3.0, min_support: int = 3,
+                       moved: Any = None, gate_sigmas: float = _BEAM_GATE_SIGMAS, min_support: int = 3,
                        block: int = 512) -> np.ndarray:
     """Each point moved along its own beam to the surface its neighbours see there.
 
@@ -761,6 +765,11 @@ def beam_median_points(points_turntable: Any, range_noise_m: Any, *, radius_m: f
                          f"got {noise.shape}")
     if not (math.isfinite(radius_m) and radius_m > 0):
         raise ValueError(f"radius_m must be a length > 0 metres, got {radius_m!r}")
+    if not (math.isfinite(gate_sigmas) and gate_sigmas > 0) or min_support < 1 or block < 1:
+        raise ValueError(f"gate_sigmas must be > 0 and min_support and block at least 1, got {gate_sigmas!r}, "
+                         f"{min_support!r}, {block!r}")
+    if moved is not None and np.shape(moved) != (len(pts),):
+        raise ValueError(f"moved must be one bool a point ({len(pts)}), got shape {np.shape(moved)}")
     sigma = np.linalg.norm(noise, axis=1)
     todo = sigma > 0
     if moved is not None:
@@ -870,7 +879,7 @@ def _heights_moved_along_beams(pts: np.ndarray, cell: float, min_points: float, 
     # most 3 sigma |d_z| in z, and a top voxel's points lie within a cell below its
     # centroid. Widen the band until it holds every point that can reach the lowest
     # top found; the heights are then those of the whole cloud moved.
-    reach_z = 3.0 * np.abs(noise[:, 2])
+    reach_z = _BEAM_GATE_SIGMAS * np.abs(noise[:, 2])
     moved_pts = pts.copy()
     done = np.zeros(len(pts), dtype=bool)
     tops = raw
@@ -907,7 +916,7 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
 
     Given each point's range noise (``range_noise_m``), the points are first moved
     along their beams onto the surface their neighbours see (:func:`beam_median_points`,
-    a cylinder two spacings wide): a voxel count alone cannot tell a noisy top from
+    in a cylinder of radius two spacings round each beam): a voxel count alone cannot tell a noisy top from
     the band the noise spreads it into, which is several voxels deep when the beams
     look down on the top (a LiDAR raised above a flat plant, as ``--fit-rig`` sets it:
     the 3-leaf rosette's top read +9.5 % on one grid, -0.8 % on another). Only the
