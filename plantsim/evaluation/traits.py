@@ -42,6 +42,7 @@ simple estimator; its limits are stated where it is defined:
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
 import typing
@@ -794,16 +795,26 @@ def beam_median_points(points_turntable: Any, range_noise_m: Any, *, radius_m: f
         dirs = noise[chunk] / sigma[chunk, None]
         centres = pts[chunk][owner] + t[:, None] * dirs[owner]
         found = tree.query_ball_point(centres, ball, return_sorted=False)
-        ends = np.cumsum(n_balls)
-        for j, i in enumerate(chunk):
-            nb = np.unique(np.fromiter(
-                (q for lst in found[ends[j] - n_balls[j]:ends[j]] for q in lst), dtype=np.int64))
-            v = pts[nb] - pts[i]
-            along = v @ dirs[j]
-            lateral_sq = np.einsum("ij,ij->i", v, v) - along * along
-            near = (lateral_sq < radius_m * radius_m) & (np.abs(along) < half[j])
-            if near.sum() >= min_support:
-                out[i] = pts[i] + float(np.median(along[near])) * dirs[j]
+        # Every (point, neighbour) pair the balls found, once, then the cylinder's test and
+        # each point's median offset, for the whole block at once.
+        lengths = np.fromiter((len(f) for f in found), dtype=np.int64, count=len(found))
+        neighbour = np.fromiter(itertools.chain.from_iterable(found), dtype=np.int64, count=int(lengths.sum()))
+        who = np.repeat(owner, lengths)
+        key = np.unique(who * len(pts) + neighbour)
+        who, neighbour = key // len(pts), key % len(pts)
+        v = pts[neighbour] - pts[chunk][who]
+        along = np.einsum("ij,ij->i", v, dirs[who])
+        lateral_sq = np.einsum("ij,ij->i", v, v) - along * along
+        near = (lateral_sq < radius_m * radius_m) & (np.abs(along) < half[who])
+        who, along = who[near], along[near]
+        order = np.lexsort((along, who))
+        who, along = who[order], along[order]
+        count = np.bincount(who, minlength=len(chunk))
+        begin = np.r_[0, np.cumsum(count)[:-1]]
+        ok = count >= min_support
+        lo = along[begin[ok] + (count[ok] - 1) // 2]
+        hi = along[begin[ok] + count[ok] // 2]
+        out[chunk[ok]] = pts[chunk[ok]] + (0.5 * (lo + hi))[:, None] * dirs[ok]
     return out
 
 
