@@ -872,9 +872,9 @@ def heights_over_grids(points_turntable: Any, *, base_z: float = 0.0, cell: floa
         if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
             raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
                              f"got {noise.shape}")
-        range_noise_m = noise
-    tops, _, _ = _heights_moved_along_beams(pts, cell, min_points, offsets, range_noise_m,
-                                            2.0 * scale.spacing_m if scale is not None else 0.0)
+        tops, _, _ = _heights_moved_along_beams(pts, cell, min_points, offsets, noise, 2.0 * scale.spacing_m)
+    else:
+        tops = _top_voxel_heights(pts, cell, min_points, offsets)
     return tuple(top - base_z for top in tops)
 
 
@@ -927,9 +927,9 @@ def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | N
 
     Given each point's range noise (``range_noise_m``), the points are first moved
     along their beams onto the surface their neighbours see (:func:`beam_median_points`,
-    in a cylinder of radius two spacings round each beam): a voxel count alone cannot tell a noisy top from
-    the band the noise spreads it into, which is several voxels deep when the beams
-    look down on the top (a LiDAR raised above a flat plant, as ``--fit-rig`` sets it:
+    in a cylinder of radius two spacings round each beam): a voxel count alone cannot
+    tell a noisy top from the band the noise spreads it into, which is several voxels
+    deep when the beams look down on the top (a LiDAR raised above a flat plant, as ``--fit-rig`` sets it:
     the 3-leaf rosette's top read +9.5 % on one grid, -0.8 % on another). Only the
     points that can reach the top are moved.
 
