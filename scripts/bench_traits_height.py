@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import statistics
 
 from benchkit import median_time
 
@@ -58,7 +59,7 @@ def main() -> None:
             without.append(median_time(lambda: traits.extract_traits(points), 1)[0])
             t, est = median_time(lambda: traits.extract_traits(points, range_noise_m=noise), 1)
             with_noise.append(t)
-        t0, t1 = sorted(without)[len(without) // 2], sorted(with_noise)[len(with_noise) // 2]
+        t0, t1 = statistics.median(without), statistics.median(with_noise)
         moved = next((n.split(" read with the ")[1].split(" points")[0] for n in est.notes
                       if n.startswith("height:") and "moved along their beams" in n), "0")
         print(f"{name:30s} {len(points):7,d} points: {t0:.2f} s without the noise, {t1:.2f} s with "

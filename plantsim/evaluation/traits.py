@@ -793,7 +793,8 @@ def beam_median_points(points_turntable: Any, range_noise_m: Any, *, radius_m: f
         k = np.arange(len(owner)) - first[owner]
         t = -half[owner] + k * (2.0 * half[owner] / np.maximum(n_balls[owner] - 1, 1))
         dirs = noise[chunk] / sigma[chunk, None]
-        centres = pts[chunk][owner] + t[:, None] * dirs[owner]
+        here = pts[chunk]
+        centres = here[owner] + t[:, None] * dirs[owner]
         found = tree.query_ball_point(centres, ball, return_sorted=False)
         # Every (point, neighbour) pair the balls found, once, then the cylinder's test and
         # each point's median offset, for the whole block at once.
@@ -802,7 +803,7 @@ def beam_median_points(points_turntable: Any, range_noise_m: Any, *, radius_m: f
         who = np.repeat(owner, lengths)
         key = np.unique(who * len(pts) + neighbour)
         who, neighbour = key // len(pts), key % len(pts)
-        v = pts[neighbour] - pts[chunk][who]
+        v = pts[neighbour] - here[who]
         along = np.einsum("ij,ij->i", v, dirs[who])
         lateral_sq = np.einsum("ij,ij->i", v, v) - along * along
         near = (lateral_sq < radius_m * radius_m) & (np.abs(along) < half[who])
@@ -814,7 +815,7 @@ def beam_median_points(points_turntable: Any, range_noise_m: Any, *, radius_m: f
         ok = count >= min_support
         lo = along[begin[ok] + (count[ok] - 1) // 2]
         hi = along[begin[ok] + count[ok] // 2]
-        out[chunk[ok]] = pts[chunk[ok]] + (0.5 * (lo + hi))[:, None] * dirs[ok]
+        out[chunk[ok]] = here[ok] + (0.5 * (lo + hi))[:, None] * dirs[ok]
     return out
 
 
