@@ -83,7 +83,8 @@ def main() -> None:
                           f"{rig.lidar_height_m:.3f} m up, tilt {rig.tilt_deg:g} deg)")
             result = run_scan(config, plant=plant)
             pts = result.cloud.plant_only().points_turntable
-            est, tr = traits.extract_traits(pts, range_noise_m=scan_range_noise(result)[0]), pl.traits
+            noise = scan_range_noise(result)[0]
+            est, tr = traits.extract_traits(pts, range_noise_m=noise), pl.traits
             # Leaves as a botanist counts them: a compound leaf (laminae on one petiole) once.
             true_leaves = len(set(traits.true_leaf_groups(tr["leaves"])))
             laminae = (f" (laminae {est.lamina_count}/{len(tr['leaves'])})"
@@ -111,7 +112,7 @@ def main() -> None:
                   + (f", area {min(areas):+.0f}..{max(areas):+.0f} %" if areas else "")
                   + (f", stem height {_mm(min(stem_heights))}-{_mm(max(stem_heights))} mm" if stem_heights else ""),
                   flush=True)
-            print(f"{'':16s} {'':7s}  leaves matched: {match_procedural_leaves(pts, pl).summary()}", flush=True)
+            print(f"{'':16s} {'':7s}  leaves matched: {match_procedural_leaves(pts, pl, range_noise_m=noise).summary()}", flush=True)
 
 
 if __name__ == "__main__":

@@ -21,8 +21,9 @@ its top leaves merge, 18 to 21 over the grids; realistic 11); realistic
 wheat area (+295 %: one stem of four found, its 4 mm hidden in a noisy column 5 cm wide,
 the other tillers read as wide leaves) and realistic rosettes (6 leaves for 12, area
 -41 %; one leaf for 30, -82 %, which a note says is a ring of merged
-leaves, tested below); on the 3-leaf plants, the ideal rosette's height (-2.3 %),
-the realistic rosette's count (1 leaf) and the realistic bean's area (+77 %). The point
+leaves, tested below); on the 3-leaf plants, the ideal rosette's height (-2.3 %: the
+top is a leaf's tip, and the URG's beams, 0.35 deg apart, pass 1.5 mm below it; a fan
+three times finer reads -0.5 %) and the realistic rosette's count (1 leaf). The point
 spacing the segmentation scales by is the median over the surface's area, measured on
 every point kept (segmentation.estimate_scale): as a 90th percentile over the points, on
 the points the outlier removal kept, it measured the stem of a small plant, which holds
@@ -33,6 +34,12 @@ read as a leaf).
 Every plant is scanned on the default rig, which warns about the maize (their tops seen
 61-62 deg up) and the rosettes (flat, seen edge-on); ``scripts/traits_accuracy.py
 --fit-rig`` scans those on the rig ``--fit-rig`` picks (docs/traits.md: 10 misses for 11).
+
+Each scan's traits are read given its range noise, each point's beam direction times the
+noise's sigma, as ``plantsim traits`` reads it from the scan's sidecar (zeros for the
+ideal sensor): the plant's top is read with its points moved along their beams, and a
+branch that a noisy stem's hits make is given back to the stem (the realistic bean's
+area read +77 % without it, +19 % with it).
 
 Traits are measured on the LAS file's 0.01 mm grid, and the organs segmented on 9
 shifted voxel grids, the grid of the median leaf count kept (``TraitSettings.shifted_grids``):
@@ -101,8 +108,10 @@ def _cloud(name: str, ideal: bool, step_deg: float):
 
 @functools.lru_cache(maxsize=None)
 def _scan(name: str, ideal: bool, step_deg: float):
+    # Given the scan's range noise, as `plantsim traits` reads it from the scan's sidecar
+    # (zeros for the ideal sensor: nothing moves, no branch is the stem's noise).
     points, truth = _cloud(name, ideal, step_deg)
-    return traits.extract_traits(points), truth
+    return traits.extract_traits(points, range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)]), truth
 
 
 def _rel(estimate, truth):
@@ -210,10 +219,50 @@ def test_an_ideal_dicots_leaves_are_its_true_compound_leaves():
 
 
 @pytest.mark.parametrize("name", ["maize", "dicot"] + _miss(("wheat",), ("rosette12",), ("rosette30",))
-                         + _small("bean3"))
+                         + _small())
 def test_leaf_area_from_a_realistic_scan_within_thirty_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.35
+
+
+def test_the_branches_a_noisy_stem_spreads_are_given_back_to_it():
+    # The 3-leaf bean's 7 mm stem under 10 mm of range noise is a disc 2 cm wide whose
+    # lobes the skeleton reads as leaves: 4 "leaves" for 3, 25 % of their points on a
+    # true leaf, area +77 %. Given each point's beam (the scan's range noise), a branch
+    # 90 % of whose points could be the stem's hits carried along their beams goes back
+    # to the stem (segmentation.stem_noise_points): 2 leaves (2 or 3 over the grids),
+    # 42 % of their points on a true leaf, and 95 % of the true leaves' points kept.
+    points, _ = _cloud("bean3", *REALISTIC)
+    noise = _RANGE_NOISE[("bean3", *REALISTIC)]
+    truth_of = functools.partial(procedural_leaf_labels, plant=PLANTS["bean3"]())
+    plain = traits.segment_for_traits(points)
+    given = traits.segment_for_traits(points, range_noise_m=noise)
+    assert plain.stem_noise_branches == 0 and given.stem_noise_branches >= 1
+
+    def precision_recall(seg):
+        on_leaf, labelled = truth_of(seg.points) >= 0, seg.leaf_label >= 0
+        return on_leaf[labelled].mean(), labelled[on_leaf].mean()
+
+    (p0, r0), (p1, r1) = precision_recall(plain), precision_recall(given)
+    assert p1 > p0 + 0.1 and r1 >= r0 - 0.06, (p0, r0, p1, r1)
+    est, truth = _scan("bean3", *REALISTIC)
+    assert set(est.leaf_counts_over_grids) <= {2, 3}
+    assert sum("the stem's own hits" in n for n in est.notes) == 1
+    # The maize's leaves lie along its stem for much of their sheath (87-89 % of the
+    # points of some of them within the stem's noise): none goes to the stem, on any grid.
+    maize, _ = _scan("maize", *REALISTIC)
+    assert not any("the stem's own hits" in n for n in maize.notes)
+    points, _ = _cloud("maize", *REALISTIC)
+    noise = _RANGE_NOISE[("maize", *REALISTIC)]
+    s = traits.TraitSettings()
+    above = traits._above_mask(traits.on_file_grid(points), s)
+    from plantsim.evaluation import segmentation
+
+    grids = segmentation.segment_on_shifted_grids(
+        traits.on_file_grid(points)[above], offsets=segmentation.shifted_grid_offsets(s.shifted_grids),
+        settings=segmentation.SegmentationSettings(base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter),
+        range_noise_m=noise[above])
+    assert [g.stem_noise_branches for g in grids] == [0] * s.shifted_grids
 
 
 def test_the_realistic_30_leaf_rosettes_one_leaf_is_said_to_be_a_ring_of_leaves():
@@ -368,7 +417,8 @@ def test_the_traits_of_a_scan_read_back_from_its_file_are_its_own(tmp_path, name
     est, _ = _scan(name, ideal, step_deg)
     path = tmp_path / f"scan{suffix}"
     write_cloud(path, cloud, xyz_double=True)
-    back = traits.extract_traits(read_cloud(path).points_turntable)
+    back = traits.extract_traits(read_cloud(path).points_turntable,
+                                 range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)])
     assert (back.height_m, back.leaf_count, back.leaf_area_m2) == (est.height_m, est.leaf_count, est.leaf_area_m2)
     assert back.leaf_counts_over_grids == est.leaf_counts_over_grids
 
@@ -380,7 +430,8 @@ def test_a_micrometre_moves_the_traits_within_their_spread_over_the_grids(name, 
     # the count stays within the range the grids read, and the area within theirs.
     points, truth = _cloud(name, ideal, step_deg)
     est, _ = _scan(name, ideal, step_deg)
-    moved = traits.extract_traits(points + np.random.default_rng(1).uniform(-1e-6, 1e-6, points.shape))
+    moved = traits.extract_traits(points + np.random.default_rng(1).uniform(-1e-6, 1e-6, points.shape),
+                                  range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)])
     counts = est.leaf_counts_over_grids
     assert len(counts) == 9 and est.leaf_count == int(np.median(counts))
     assert min(counts) <= moved.leaf_count <= max(counts)

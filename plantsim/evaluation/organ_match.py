@@ -174,19 +174,21 @@ def procedural_leaf_labels(points_turntable: Any, plant: Any) -> np.ndarray:
                                  np.where(plant.face_part == PART_LEAF, plant.face_organ, -1))
 
 
-def match_procedural_leaves(points_turntable: Any, plant: Any) -> LeafMatch:
+def match_procedural_leaves(points_turntable: Any, plant: Any, *, range_noise_m: Any = None) -> LeafMatch:
     """The leaves :func:`plantsim.evaluation.traits.extract_traits` finds in a scan of a
     procedural plant, matched to the plant's true leaves (:func:`procedural_leaf_labels`).
 
     Args:
         points_turntable: (n, 3) float64, metres: the scan's plant points.
         plant: a :class:`plantsim.plant.procedural.ProceduralPlant` (face labels and traits).
+        range_noise_m: optional, each point's range noise vector, as ``extract_traits``
+            takes it (the leaves it finds then).
 
     Returns:
         LeafMatch.
     """
     from plantsim.evaluation.traits import segment_for_traits
 
-    seg = segment_for_traits(points_turntable)
+    seg = segment_for_traits(points_turntable, range_noise_m=range_noise_m)
     return match_leaves(seg.leaf_label, procedural_leaf_labels(seg.points, plant),
                         n_true_leaves=len(plant.traits["leaves"]))

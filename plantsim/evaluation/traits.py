@@ -70,6 +70,14 @@ __all__ = [
 _NAN = float("nan")
 
 
+def _checked_noise(range_noise_m: Any, pts: np.ndarray) -> np.ndarray:
+    noise = np.asarray(range_noise_m, dtype=np.float64)
+    if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
+        raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
+                         f"got {noise.shape}")
+    return noise
+
+
 def _as_cloud(points: Any, name: str = "points_turntable") -> np.ndarray:
     return metrics._as_points(points, name, hint="drop misses before extracting traits")
 
@@ -1179,7 +1187,7 @@ class _Grids(typing.NamedTuple):
     grids: tuple["segmentation.Segmentation", ...]  # every grid's, in the offsets' order
 
 
-def _segment_above(pts: np.ndarray, s: TraitSettings) -> _Grids:
+def _segment_above(pts: np.ndarray, s: TraitSettings, noise: np.ndarray | None = None) -> _Grids:
     """The points above the ground clearance and their segmentation on
     ``s.shifted_grids`` grids, as traits read them: of the grids whose leaf count is
     the median, the one whose leaf area (:func:`_leaf_measures`) is nearest their
@@ -1188,16 +1196,20 @@ def _segment_above(pts: np.ndarray, s: TraitSettings) -> _Grids:
     The median member in count, then in area: a micrometre's jitter changes a few
     grids' outcomes, and the median count rarely (scripts/traits_stability.py). The
     area moves more: where the grids' areas fall in two groups (a leaf lost to the
-    stem's column on some grids), a jitter can pick a grid of the other group."""
+    stem's column on some grids), a jitter can pick a grid of the other group.
+    ``noise``: each point of ``pts``' range noise vector, or None
+    (:func:`plantsim.evaluation.segmentation.segment_organs`' ``range_noise_m``)."""
     from plantsim.evaluation import segmentation
 
-    above = pts[_above_mask(pts, s)]
+    mask = _above_mask(pts, s)
+    above = pts[mask]
     if len(above) < 17:
         raise ValueError(f"points_turntable holds {len(above)} points above the ground clearance; "
                          "traits need at least 17")
     grids = segmentation.segment_on_shifted_grids(
         above, settings=segmentation.SegmentationSettings(base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter),
-        offsets=segmentation.shifted_grid_offsets(s.shifted_grids))
+        offsets=segmentation.shifted_grid_offsets(s.shifted_grids),
+        range_noise_m=None if noise is None else noise[mask])
     counts = np.array([leaf_count_of(g) for g in grids])
     areas = np.array([sum(_leaf_measures(g.points[g.leaf_label == i], m, link=g.link_m)[2]
                           for i, m in enumerate(g.leaf_midribs)) if len(g.leaf_midribs) else _NAN
@@ -1211,8 +1223,8 @@ def _segment_above(pts: np.ndarray, s: TraitSettings) -> _Grids:
                   tuple(grids))
 
 
-def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None = None
-                       ) -> "segmentation.Segmentation":
+def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None = None,
+                       range_noise_m: Any = None) -> "segmentation.Segmentation":
     """The segmentation :func:`extract_traits` reads its organs from: the points above
     ``base_z + ground_clearance`` on the LAS grid (:func:`on_file_grid`), segmented
     with the settings' base and widest stem on ``settings.shifted_grids`` grids: of the
@@ -1222,11 +1234,15 @@ def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None 
     Args:
         points_turntable: (n, 3) float64, metres, turntable frame.
         settings: extraction settings (defaults if None).
+        range_noise_m: optional (n, 3) per point, as :func:`extract_traits`' (the
+            stems' noise is then no leaf).
 
     Returns:
         Segmentation (its ``points`` are the kept points above the clearance).
     """
-    return _segment_above(on_file_grid(_as_cloud(points_turntable)), settings or TraitSettings()).segmentation
+    pts = on_file_grid(_as_cloud(points_turntable))
+    noise = None if range_noise_m is None else _checked_noise(range_noise_m, pts)
+    return _segment_above(pts, settings or TraitSettings(), noise).segmentation
 
 
 def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = None,
@@ -1307,13 +1323,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
 
     s = settings or TraitSettings()
     pts = on_file_grid(_as_cloud(points_turntable))
-    noise = None
-    if range_noise_m is not None:
-        noise = np.asarray(range_noise_m, dtype=np.float64)
-        if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
-            raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
-                             f"got {noise.shape}")
-    above, seg, grid_counts, grid_areas, grids = _segment_above(pts, s)
+    noise = None if range_noise_m is None else _checked_noise(range_noise_m, pts)
+    above, seg, grid_counts, grid_areas, grids = _segment_above(pts, s, noise)
     noise_above = None if noise is None else noise[_above_mask(pts, s)]
     noise_seg = None if noise is None else noise_above[seg.kept]
     notes: list[str] = []
@@ -1373,6 +1384,13 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                      f"on one stalk out of the stem's column): {len(leaves)} laminae make "
                      f"{n_leaves} leaves; leaf_count counts a compound leaf once, lamina_count every "
                      "lamina, and the per-leaf lengths, widths, areas and inclinations are per lamina")
+    if seg.stem_noise_branches:
+        n = seg.stem_noise_branches
+        notes.append(f"{n} branch{'es' if n > 1 else ''} long enough to be a leaf not counted as "
+                     f"lea{'ves' if n > 1 else 'f'}: {100 * segmentation.STEM_NOISE_SHARE:.0f} % or more of "
+                     f"{'their' if n > 1 else 'its'} points lie on beams through the stem's column, within "
+                     f"{segmentation.STEM_NOISE_GATE_SIGMAS:g} sigma of the range noise of where the beam enters "
+                     "it: the stem's own hits, spread along their beams by the noise; given to the stem")
     if seg.sparse_branches:
         notes.append(f"{seg.sparse_branches} branch{'es' if seg.sparse_branches > 1 else ''} long enough to be "
                      "a leaf not counted as leaves: each holds fewer points than there are point spacings "
