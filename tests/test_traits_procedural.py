@@ -225,13 +225,45 @@ def test_leaf_area_from_a_realistic_scan_within_thirty_five_percent(name):
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.35
 
 
+def _grids_given_noise(points, noise):
+    """The segmentation's 9 grids as extract_traits makes them, given the range noise."""
+    from plantsim.evaluation import segmentation
+
+    s = traits.TraitSettings()
+    pts = traits.on_file_grid(points)
+    above = traits._above_mask(pts, s)
+    return segmentation.segment_on_shifted_grids(
+        pts[above], offsets=segmentation.shifted_grid_offsets(s.shifted_grids),
+        settings=segmentation.SegmentationSettings(base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter),
+        range_noise_m=noise[above])
+
+
+@functools.lru_cache(maxsize=None)
+def _fitted_maize_scan():
+    """The realistic 1-degree scan of the 9-leaf maize on the rig fit_rig picks for it:
+    (points, range noise)."""
+    from plantsim.rig.fit import fit_rig
+
+    plant = PLANTS["maize"]()
+    placed = plant_from_arrays(plant.vertices_m, plant.faces)
+    config = RunConfig(ideal=False, scan=StepScan(step_deg=1.0))
+    rig, _ = fit_rig(placed, config.rig, config.lidar)
+    logging.getLogger("plantsim").setLevel(logging.ERROR)
+    try:
+        result = run_scan(config.replace(rig=rig), plant=placed)
+    finally:
+        logging.getLogger("plantsim").setLevel(logging.NOTSET)
+    return result.cloud.plant_only().points_turntable, scan_range_noise(result)[0]
+
+
 def test_the_branches_a_noisy_stem_spreads_are_given_back_to_it():
     # The 3-leaf bean's 7 mm stem under 10 mm of range noise is a disc 2 cm wide whose
     # lobes the skeleton reads as leaves: 4 "leaves" for 3, 25 % of their points on a
     # true leaf, area +77 %. Given each point's beam (the scan's range noise), a branch
-    # 90 % of whose points could be the stem's hits carried along their beams goes back
-    # to the stem (segmentation.stem_noise_points): 2 leaves (2 or 3 over the grids),
-    # 42 % of their points on a true leaf, and 95 % of the true leaves' points kept.
+    # 90 % of whose points could be the stem's hits carried along their beams, and that
+    # ends within the stem's noise disc, goes back to the stem
+    # (segmentation.stem_noise_points): 2 leaves (2 or 3 over the grids), 42 % of their
+    # points on a true leaf, and 95 % of the true leaves' points kept.
     points, _ = _cloud("bean3", *REALISTIC)
     noise = _RANGE_NOISE[("bean3", *REALISTIC)]
     truth_of = functools.partial(procedural_leaf_labels, plant=PLANTS["bean3"]())
@@ -248,21 +280,16 @@ def test_the_branches_a_noisy_stem_spreads_are_given_back_to_it():
     est, truth = _scan("bean3", *REALISTIC)
     assert set(est.leaf_counts_over_grids) <= {2, 3}
     assert sum("the stem's own hits" in n for n in est.notes) == 1
-    # The maize's leaves lie along its stem for much of their sheath (87-89 % of the
-    # points of some of them within the stem's noise): none goes to the stem, on any grid.
+    # The maize's leaves lie along its stem for much of their sheath: up to 89 % of a
+    # leaf's points within the stem's noise on this rig, 94 % on the one fit_rig picks
+    # for it (0.47 m out, 0.30 m up), where the share alone gave a leaf of 9 to the stem.
+    # They reach out of the noise disc: none goes to the stem, on any grid.
     maize, _ = _scan("maize", *REALISTIC)
     assert not any("the stem's own hits" in n for n in maize.notes)
     points, _ = _cloud("maize", *REALISTIC)
-    noise = _RANGE_NOISE[("maize", *REALISTIC)]
-    s = traits.TraitSettings()
-    above = traits._above_mask(traits.on_file_grid(points), s)
-    from plantsim.evaluation import segmentation
-
-    grids = segmentation.segment_on_shifted_grids(
-        traits.on_file_grid(points)[above], offsets=segmentation.shifted_grid_offsets(s.shifted_grids),
-        settings=segmentation.SegmentationSettings(base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter),
-        range_noise_m=noise[above])
-    assert [g.stem_noise_branches for g in grids] == [0] * s.shifted_grids
+    fitted = _fitted_maize_scan()
+    for pts, noise in ((points, _RANGE_NOISE[("maize", *REALISTIC)]), fitted):
+        assert [g.stem_noise_branches for g in _grids_given_noise(pts, noise)] == [0] * 9
 
 
 def test_the_realistic_30_leaf_rosettes_one_leaf_is_said_to_be_a_ring_of_leaves():
