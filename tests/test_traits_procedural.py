@@ -33,7 +33,7 @@ read as a leaf).
 ``scripts/traits_separability.py`` says how far the realistic noise itself mixes the organs.
 Every plant is scanned on the default rig, which warns about the maize (their tops seen
 61-62 deg up) and the rosettes (flat, seen edge-on); ``scripts/traits_accuracy.py
---fit-rig`` scans those on the rig ``--fit-rig`` picks (docs/traits.md: 10 misses for 11).
+--fit-rig`` scans those on the rig ``--fit-rig`` picks (docs/traits.md: 9 misses for 10).
 
 Each scan's traits are read given its range noise, each point's beam direction times the
 noise's sigma, as ``plantsim traits`` reads it from the scan's sidecar (zeros for the
