@@ -1293,8 +1293,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       beams, is the stem's, with a note (step 8 of
       :mod:`plantsim.evaluation.segmentation`: the realistic 3-leaf bean's area
       +19 % for +77 %); a leaf that surrounds its stem is no single leaf,
-      :func:`encircling_leaves`, said in a note); per leaf length, width, area and inclination (:func:`_leaf_measures`);
-      ``leaf_area_m2`` their sum (one side).
+      :func:`encircling_leaves`, said in a note); per leaf length, width, area and
+      inclination (:func:`_leaf_measures`); ``leaf_area_m2`` their sum (one side).
       With no branch long enough to be a leaf: count 0, area, length and width
       NaN (not measured, never 0) and a note naming the length a branch needed
       (``Segmentation.min_leaf_length_m``).
