@@ -22,8 +22,9 @@ wheat area (+295 %: one stem of four found, its 4 mm hidden in a noisy column 5 
 the other tillers read as wide leaves) and realistic rosettes (6 leaves for 12, area
 -41 %; one leaf for 30, -82 %, which a note says is a ring of merged
 leaves, tested below); on the 3-leaf plants, the ideal rosette's height (-2.3 %: the
-top is a leaf's tip, and the URG's beams, 0.35 deg apart, pass 1.5 mm below it; a fan
-three times finer reads -0.5 %) and the realistic rosette's count (1 leaf). The point
+top is a leaf's tip, and the URG's beams, 0.35 deg apart, pass 1.5 mm below it; with a
+fan three times finer the cloud's highest point lies 0.3 mm below it) and the realistic
+rosette's count (1 leaf). The point
 spacing the segmentation scales by is the median over the surface's area, measured on
 every point kept (segmentation.estimate_scale): as a 90th percentile over the points, on
 the points the outlier removal kept, it measured the stem of a small plant, which holds
