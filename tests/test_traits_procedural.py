@@ -228,15 +228,7 @@ def test_leaf_area_from_a_realistic_scan_within_thirty_five_percent(name):
 
 def _grids_given_noise(points, noise):
     """The segmentation's 9 grids as extract_traits makes them, given the range noise."""
-    from plantsim.evaluation import segmentation
-
-    s = traits.TraitSettings()
-    pts = traits.on_file_grid(points)
-    above = traits._above_mask(pts, s)
-    return segmentation.segment_on_shifted_grids(
-        pts[above], offsets=segmentation.shifted_grid_offsets(s.shifted_grids),
-        settings=segmentation.SegmentationSettings(base_z=s.base_z, max_stem_diameter_m=s.stem_max_diameter),
-        range_noise_m=noise[above])
+    return traits._segment_above(traits.on_file_grid(points), traits.TraitSettings(), noise).grids
 
 
 @functools.lru_cache(maxsize=None)

@@ -116,7 +116,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "CloudScale", "Segmentation", "SegmentationSettings", "StemBase", "estimate_scale",
-    "find_stems", "kept_points", "node_frames", "outlier_mask", "segment_on_shifted_grids",
+    "checked_range_noise", "find_stems", "kept_points", "node_frames", "outlier_mask", "segment_on_shifted_grids",
     "segment_organs", "shifted_grid_offsets", "stem_noise_points", "uniform_width", "voxel_centroids",
 ]
 
@@ -1191,10 +1191,7 @@ def stem_noise_points(points_turntable: Any, range_noise_m: Any, *, axis_xy_m: A
         (n,) bool.
     """
     pts = _checked_points(points_turntable)
-    noise = np.asarray(range_noise_m, dtype=np.float64)
-    if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
-        raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
-                         f"got {noise.shape}")
+    noise = checked_range_noise(range_noise_m, pts)
     axis = np.broadcast_to(np.asarray(axis_xy_m, dtype=np.float64), (len(pts), 2))
     lo, hi = (float(z) for z in z_range_m)
     if not (math.isfinite(radius_m) and radius_m > 0 and math.isfinite(gate_sigmas) and gate_sigmas > 0):
@@ -1319,6 +1316,20 @@ def shifted_grid_offsets(n: int) -> np.ndarray:
     return qmc.Halton(d=4, scramble=False).random(int(n))
 
 
+def checked_range_noise(range_noise_m: Any, points: np.ndarray) -> np.ndarray:
+    """``range_noise_m`` as float64, one finite vector per point of ``points``
+    ((n, 3), as :func:`plantsim.evaluation.evaluate.range_noise_vectors` gives them).
+
+    Raises:
+        ValueError: another shape, or a NaN or inf.
+    """
+    noise = np.asarray(range_noise_m, dtype=np.float64)
+    if noise.shape != points.shape or not np.all(np.isfinite(noise)):
+        raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {points.shape}, "
+                         f"got {noise.shape}")
+    return noise
+
+
 def _checked_points(points_turntable: Any) -> np.ndarray:
     raw = np.asarray(points_turntable, dtype=np.float64)
     if raw.ndim != 2 or raw.shape[1] != 3:
@@ -1380,12 +1391,7 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
         raise ValueError(f"settings.grid_offset {s.grid_offset} and offsets both say where the grid starts: "
                          "leave settings.grid_offset at zeros and give the offsets")
     raw = _checked_points(points_turntable)
-    noise = None
-    if range_noise_m is not None:
-        noise = np.asarray(range_noise_m, dtype=np.float64)
-        if noise.shape != raw.shape or not np.all(np.isfinite(noise)):
-            raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {raw.shape}, "
-                             f"got {noise.shape}")
+    noise = None if range_noise_m is None else checked_range_noise(range_noise_m, raw)
     kept, scale = kept_points(raw)
     pts = raw[kept]
     noise = None if noise is None or not np.any(noise != 0) else noise[kept]

@@ -70,14 +70,6 @@ __all__ = [
 _NAN = float("nan")
 
 
-def _checked_noise(range_noise_m: Any, pts: np.ndarray) -> np.ndarray:
-    noise = np.asarray(range_noise_m, dtype=np.float64)
-    if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
-        raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
-                         f"got {noise.shape}")
-    return noise
-
-
 def _as_cloud(points: Any, name: str = "points_turntable") -> np.ndarray:
     return metrics._as_points(points, name, hint="drop misses before extracting traits")
 
@@ -767,11 +759,10 @@ def beam_median_points(points_turntable: Any, range_noise_m: Any, *, radius_m: f
     Returns:
         (n, 3) float64, the moved points.
     """
+    from plantsim.evaluation import segmentation
+
     pts = _as_cloud(points_turntable)
-    noise = np.asarray(range_noise_m, dtype=np.float64)
-    if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
-        raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
-                         f"got {noise.shape}")
+    noise = segmentation.checked_range_noise(range_noise_m, pts)
     if not (math.isfinite(radius_m) and radius_m > 0):
         raise ValueError(f"radius_m must be a length > 0 metres, got {radius_m!r}")
     if not (math.isfinite(gate_sigmas) and gate_sigmas > 0) or min_support < 1 or block < 1:
@@ -877,10 +868,7 @@ def heights_over_grids(points_turntable: Any, *, base_z: float = 0.0, cell: floa
         if offset.shape != (3,) or not np.all((offset >= 0) & (offset < 1)):
             raise ValueError(f"grid_offset must be 3 fractions of a cell in [0, 1), got {tuple(offset)!r}")
     if range_noise_m is not None:
-        noise = np.asarray(range_noise_m, dtype=np.float64)
-        if noise.shape != pts.shape or not np.all(np.isfinite(noise)):
-            raise ValueError(f"range_noise_m must be finite and shaped like points_turntable {pts.shape}, "
-                             f"got {noise.shape}")
+        noise = segmentation.checked_range_noise(range_noise_m, pts)
         tops, _, _ = _heights_moved_along_beams(pts, cell, min_points, offsets, noise, 2.0 * scale.spacing_m)
     else:
         tops = _top_voxel_heights(pts, cell, min_points, offsets)
@@ -1240,8 +1228,10 @@ def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None 
     Returns:
         Segmentation (its ``points`` are the kept points above the clearance).
     """
+    from plantsim.evaluation import segmentation
+
     pts = on_file_grid(_as_cloud(points_turntable))
-    noise = None if range_noise_m is None else _checked_noise(range_noise_m, pts)
+    noise = None if range_noise_m is None else segmentation.checked_range_noise(range_noise_m, pts)
     return _segment_above(pts, settings or TraitSettings(), noise).segmentation
 
 
@@ -1326,7 +1316,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
 
     s = settings or TraitSettings()
     pts = on_file_grid(_as_cloud(points_turntable))
-    noise = None if range_noise_m is None else _checked_noise(range_noise_m, pts)
+    noise = None if range_noise_m is None else segmentation.checked_range_noise(range_noise_m, pts)
     above, seg, grid_counts, grid_areas, grids = _segment_above(pts, s, noise)
     noise_above = None if noise is None else noise[_above_mask(pts, s)]
     noise_seg = None if noise is None else noise_above[seg.kept]
