@@ -275,7 +275,7 @@ def test_the_branches_a_noisy_stem_spreads_are_given_back_to_it():
     assert sum("the stem's own hits" in n for n in est.notes) == 1
     # The maize's leaves lie along its stem for much of their sheath: up to 89 % of a
     # leaf's points within the stem's noise on this rig, 94 % on the one fit_rig picks
-    # for it (0.47 m out, 0.30 m up), where the share alone gave a leaf of 9 to the stem.
+    # for it (0.47 m out, 0.30 m up), where the share alone gave one of its 10 leaves to the stem.
     # They reach out of the noise disc: none goes to the stem, on any grid.
     maize, _ = _scan("maize", *REALISTIC)
     assert not any("the stem's own hits" in n for n in maize.notes)
