@@ -206,11 +206,12 @@ class Leaf:
 
     Attributes:
         index: order in the plant (truth) or of detection (cloud).
-        length_m: along the midrib.
+        length_m: along the midrib, of the lamina (a stalk, a petiole, left out).
         width_m: largest width across the midrib.
         n_points: points of the cloud component (0 for truth).
         area_m2: one-sided area.
-        inclination_deg: the junction-to-tip chord's angle above the horizontal.
+        inclination_deg: the base-to-tip chord's angle above the horizontal (the
+            junction, or the lamina's base past a stalk).
         noise_width_m: the width the sensor's range noise alone reads across the leaf
             (the 2nd-98th percentile extent of its along-beam noise projected across
             the midrib; NaN when the noise was not given).
@@ -1041,7 +1042,11 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     """Length, width, area, inclination and noise width of one segmented leaf.
 
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
-    reach beyond its last centroid. Width: per midrib node, the robust extent (2nd to
+    reach beyond its last centroid. A stalk is left out of length, area and inclination:
+    the midrib's leading nodes narrower than ``STALK_WIDTH_SHARE`` of the leaf's width
+    (a petiole; the procedural dicots' truth is the lamina), when the first of them holds
+    a point per spacing (at most a quarter ``link``) along the step to it; the lamina
+    starts halfway between the last narrow node and the first wide one. Width: per midrib node, the robust extent (2nd to
     98th percentile) of the node's points across the midrib, along their main in-plane
     axis, read as a uniformly sampled strip's width
     (:func:`plantsim.evaluation.segmentation.uniform_width`), with ``link`` (the
@@ -1054,7 +1059,8 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     times the segment length (a leaf surface unrolled along its midrib, as in the
     length-width area models of Montgomery 1911, here with the measured width
     profile); it fills holes inside a cross-section that occlusion leaves.
-    Inclination: angle of the junction-to-tip chord above the horizontal, degrees.
+    Inclination: angle of the junction-to-tip chord (the lamina's base past a stalk)
+    above the horizontal, degrees.
     Noise width: :func:`leaf_noise_width` over the nodes the width is read over, given
     ``noise_m`` ((m, 3) per point: its beam's unit direction times the range noise's
     standard deviation); NaN without it.
@@ -1069,21 +1075,51 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     tangent, normal, widths, node = node_frames(points, midrib, link=link)
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     beyond = float(max(0.0, ((points[node == len(midrib) - 1] - midrib[-1]) @ tip_dir).max()))
-    length = float(seg_len.sum() + beyond)
     widths[0] = 0.0  # the junction node is the stem's
-    area = float(np.sum(0.5 * (widths[:-1] + widths[1:]) * seg_len))
-    chord = midrib[-1] - midrib[0]
-    incl = float(np.degrees(np.arctan2(chord[2], np.hypot(chord[0], chord[1]))))
-    # The widest cross-sections are where a neighbouring organ touches: the 90th
-    # percentile of the node widths reads the leaf's own maximum width. The basal
-    # fifth of the midrib is left out: there the sheath wraps the stem and the
-    # stem's off-axis points join the leaf (segmentation._release_leaf_bases).
+
+    def outer_of(along: np.ndarray, first: int) -> np.ndarray:
+        # The widest cross-sections are where a neighbouring organ touches: the 90th
+        # percentile of the node widths reads the leaf's own maximum width. The basal
+        # fifth of the midrib is left out: there the sheath wraps the stem and the
+        # stem's off-axis points join the leaf (segmentation._release_leaf_bases).
+        nodes = first + np.flatnonzero(along[first:] - along[first] >= 0.2 * (along[-1] - along[first]))
+        return nodes if len(nodes) else np.arange(max(first, 1), len(widths))
+
     along = np.r_[0.0, np.cumsum(seg_len)]
-    outer_nodes = np.flatnonzero(along >= 0.2 * along[-1])
-    outer_nodes = outer_nodes if len(outer_nodes) else np.arange(1, len(widths))
+    outer_nodes = outer_of(along, 0)
+    # A stalk (a petiole) is no part of the lamina: the nodes from the junction up to
+    # the first as wide as STALK_WIDTH_SHARE of the leaf go; the lamina starts halfway
+    # between that node and the last narrow one.
+    wide = np.flatnonzero(widths[1:] >= STALK_WIDTH_SHARE * np.percentile(widths[outer_nodes], 90)) + 1
+    first = int(wide[0]) if len(wide) else 1
+    # A stalk is seen where it leaves the junction: its first node holds a point per
+    # spacing (at most a quarter link) along the step to it, as a sampled surface does.
+    # A leaf's base hidden under another leaf leaves a long step to a narrow sliver
+    # instead (a rosette's leaf, whose narrow collar is in its truth: 17 points 43 mm out).
+    seen = link is None or int(np.count_nonzero(node == 1)) >= seg_len[0] / (0.25 * link)
+    if first >= 2 and seen:
+        base = 0.5 * (midrib[first - 1] + midrib[first])
+        along = np.r_[along[first] - float(np.linalg.norm(midrib[first] - base)), along[first:]]
+        lamina, lamina_widths = np.vstack([base, midrib[first:]]), np.r_[0.0, widths[first:]]
+        outer_nodes = first - 1 + outer_of(along, 0)
+        outer_nodes = outer_nodes[outer_nodes >= first]
+        if not len(outer_nodes):
+            outer_nodes = np.arange(first, len(widths))
+    else:
+        lamina, lamina_widths = midrib, widths
+    lamina_len = np.linalg.norm(np.diff(lamina, axis=0), axis=1)
+    length = float(lamina_len.sum() + beyond)
+    area = float(np.sum(0.5 * (lamina_widths[:-1] + lamina_widths[1:]) * lamina_len))
+    chord = lamina[-1] - lamina[0]
+    incl = float(np.degrees(np.arctan2(chord[2], np.hypot(chord[0], chord[1]))))
     noise_width = (_NAN if noise_m is None else
                    leaf_noise_width(noise_m, node, tangent, normal, outer_nodes))
     return length, float(np.percentile(widths[outer_nodes], 90)), area, incl, noise_width
+
+
+# A midrib's leading nodes narrower than this share of the leaf's width are its stalk (a
+# petiole), not its lamina (:func:`_leaf_measures`). See docs/traits.md for how it was set.
+STALK_WIDTH_SHARE = 0.2
 
 
 # A leaf spans a sector round the stem it grows from: the outer half of every leaf found
