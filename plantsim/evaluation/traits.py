@@ -1046,9 +1046,9 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     the midrib's leading nodes narrower than ``STALK_WIDTH_SHARE`` of the leaf's width
     (a petiole; the procedural dicots' truth is the lamina), when the first of them holds
     a point per spacing (at most a quarter ``link``) along the step to it; the lamina
-    starts halfway between the last narrow node and the first wide one. Width: per midrib node, the robust extent (2nd to
-    98th percentile) of the node's points across the midrib, along their main in-plane
-    axis, read as a uniformly sampled strip's width
+    starts halfway between the last narrow node and the first wide one. Width: per
+    midrib node, the robust extent (2nd to 98th percentile) of the node's points across
+    the midrib, along their main in-plane axis, read as a uniformly sampled strip's width
     (:func:`plantsim.evaluation.segmentation.uniform_width`), with ``link`` (the
     skeleton's link) only over the cross-section's runs in the leaf's own plane
     (another leaf crossing it at a node is left out:
@@ -1077,16 +1077,18 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     beyond = float(max(0.0, ((points[node == len(midrib) - 1] - midrib[-1]) @ tip_dir).max()))
     widths[0] = 0.0  # the junction node is the stem's
 
-    def outer_of(along: np.ndarray, first: int) -> np.ndarray:
+    along = np.r_[0.0, np.cumsum(seg_len)]
+
+    def outer_of(first: int, base_along: float) -> np.ndarray:
         # The widest cross-sections are where a neighbouring organ touches: the 90th
         # percentile of the node widths reads the leaf's own maximum width. The basal
-        # fifth of the midrib is left out: there the sheath wraps the stem and the
-        # stem's off-axis points join the leaf (segmentation._release_leaf_bases).
-        nodes = first + np.flatnonzero(along[first:] - along[first] >= 0.2 * (along[-1] - along[first]))
+        # fifth of the midrib (from ``base_along`` on) is left out: there the sheath
+        # wraps the stem and the stem's off-axis points join the leaf
+        # (segmentation._release_leaf_bases).
+        nodes = first + np.flatnonzero(along[first:] - base_along >= 0.2 * (along[-1] - base_along))
         return nodes if len(nodes) else np.arange(max(first, 1), len(widths))
 
-    along = np.r_[0.0, np.cumsum(seg_len)]
-    outer_nodes = outer_of(along, 0)
+    outer_nodes = outer_of(0, 0.0)
     # A stalk (a petiole) is no part of the lamina: the nodes from the junction up to
     # the first as wide as STALK_WIDTH_SHARE of the leaf go; the lamina starts halfway
     # between that node and the last narrow one.
@@ -1099,12 +1101,8 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     seen = link is None or int(np.count_nonzero(node == 1)) >= seg_len[0] / (0.25 * link)
     if first >= 2 and seen:
         base = 0.5 * (midrib[first - 1] + midrib[first])
-        along = np.r_[along[first] - float(np.linalg.norm(midrib[first] - base)), along[first:]]
         lamina, lamina_widths = np.vstack([base, midrib[first:]]), np.r_[0.0, widths[first:]]
-        outer_nodes = first - 1 + outer_of(along, 0)
-        outer_nodes = outer_nodes[outer_nodes >= first]
-        if not len(outer_nodes):
-            outer_nodes = np.arange(first, len(widths))
+        outer_nodes = outer_of(first, along[first] - float(np.linalg.norm(midrib[first] - base)))
     else:
         lamina, lamina_widths = midrib, widths
     lamina_len = np.linalg.norm(np.diff(lamina, axis=0), axis=1)
