@@ -626,6 +626,19 @@ def _rod(rng, start, direction, length, radius, n):
             + radius * (np.cos(phi)[:, None] * a + np.sin(phi)[:, None] * b))
 
 
+def test_a_midrib_ending_past_its_points_is_measured_not_refused():
+    # A 100 x 20 mm strip whose midrib runs on to 0.3 m: no point is nearest its last
+    # node. Its length is the midrib's, with no reach past the last node (this raised
+    # numpy's "zero-size array" error before).
+    rng = np.random.default_rng(0)
+    pts = _strip(rng, 0.1, 0.02, 500)
+    midrib = np.array([[0.0, 0.0, 0.0], [0.03, 0.0, 0.0], [0.06, 0.0, 0.0], [0.09, 0.0, 0.0], [0.30, 0.0, 0.0]])
+    length, width, area, incl, _ = traits._leaf_measures(pts, midrib)
+    assert length == pytest.approx(0.30)
+    assert width == pytest.approx(0.02, rel=0.1)
+    assert incl == pytest.approx(0.0)
+
+
 def test_a_leaf_on_a_petiole_is_measured_from_its_lamina():
     # Three 80 x 40 mm laminae, each at the end of a 60 mm petiole 3 mm thick: the leaf a
     # plant scientist measures (and the procedural dicots' truth) is the lamina. The

@@ -1074,7 +1074,10 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     # Per node its width; each point to its nearest midrib node.
     tangent, normal, widths, node = node_frames(points, midrib, link=link)
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
-    beyond = float(max(0.0, ((points[node == len(midrib) - 1] - midrib[-1]) @ tip_dir).max()))
+    # The leaf's reach past its last node; none when no point is nearest that node (a
+    # midrib can end past its points, as two merged halves' tips averaged do).
+    at_tip = points[node == len(midrib) - 1]
+    beyond = float(max(0.0, ((at_tip - midrib[-1]) @ tip_dir).max())) if len(at_tip) else 0.0
     widths[0] = 0.0  # the junction node is the stem's
 
     along = np.r_[0.0, np.cumsum(seg_len)]
