@@ -47,7 +47,10 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    crosses the axis), below where the walk up its column stops: a leaf rising steeply
    from its top lies in the noisy column too, and the walk went on up it (the
    realistic maizes' 0.42 m stems read 0.48-0.50 m); its points above go to the leaves
-   they touch. Every other tip whose branch (tip to the junction
+   they touch. In the same range image a leaf standing in front of such a stem, or in
+   its column above its top, is read from the cells' medians: the leaf's base, which
+   rises in the noisy column for 10 cm or more on a maize, goes to the leaf, with its
+   midrib and widths there (:func:`_leaf_bases_from_beams`). Every other tip whose branch (tip to the junction
    below it) is longer than ``min_leaf_length_m`` is a leaf tip, and so is a tip
    hanging from a stem piece that lies that far out of the stem's column: a
    noisy stem fills a column several
@@ -757,6 +760,9 @@ class Segmentation:
         leaf_group: per leaf (lamina) of ``leaf_midribs``, the leaf it belongs to,
             numbered 0.. in order: the leaflets of one compound leaf share it (step 7
             of the module docstring); empty means each lamina is its own leaf.
+        leaf_base_widths_m: per leaf (empty, or none given: none), the widths, metres, of
+            the nodes its midrib starts with where the beams read its base in a noisy
+            stem's column (:func:`_leaf_bases_from_beams`: the arc its cells span).
         stem_noise_branches: branches long enough to be leaves whose points the range
             noise given spread from a stem (:func:`_drop_stem_noise_leaves`; step 8): not
             counted, their points the stem's. 0 without the range noise.
@@ -775,6 +781,7 @@ class Segmentation:
     sparse_branches: int
     leaf_group: tuple[int, ...] = ()
     stem_noise_branches: int = 0
+    leaf_base_widths_m: tuple[np.ndarray, ...] = ()
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
@@ -1341,6 +1348,114 @@ def _axis_range_image(pts: np.ndarray, noise: np.ndarray, *, base_z: float, slic
                        sigma_s=sigma_s, n_levels=int(level.max()) + 1, n_sectors=n_sectors)
 
 
+# A cell of the range image stands in front of a stem when its median distance from the
+# axis exceeds the stem's by this many standard errors of a median (_leaf_bases_from_beams).
+FRONT_SIGMAS = 3.0
+
+
+def _leaf_bases_from_beams(pts: np.ndarray, noise: np.ndarray, stem_label: np.ndarray, leaf_label: np.ndarray,
+                           midribs: list[np.ndarray], *, top_z: float, base_z: float, slice_m: float,
+                           max_miss_m: float, column_m: float, sector_deg: float = 3.0
+                           ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], dict[int, np.ndarray]]:
+    """Give each leaf the base it has in a noisy stem's column, from the beams.
+
+    A leaf leaving a noisy stem on the axis steeply (a maize leaf rises along its stem
+    for 10 cm or more) lies in the stem's noisy column, where its points are stem or
+    nothing to the skeleton: the leaf began where it left the column, 12-18 cm above its
+    insertion, and read a quarter short. In the range image of turn angle and height
+    (:func:`beam_stem_top`; the stem ends at ``top_z``) a cell holds the first hits of
+    its beams, the stem's or those of a leaf standing in front of it, and its median
+    distance from the axis towards the sensor reads which, although each point is 12 mm
+    noisy: the stem's cells read its radius (the median over the cells on the
+    sensor's side), a leaf's more, by :data:`FRONT_SIGMAS` standard errors of the median
+    (``1.2533 sigma / sqrt(n)``) or more. Above the stem's top every cell within the
+    column (``column_m`` plus that error) is a leaf's. Those cells, connected in turn
+    angle and height, go to the leaf that holds most of the points of the cells they
+    reach first (a breadth-first search from the cells whose points are mostly a
+    leaf's); their points that are not a leaf's become that leaf's, and its midrib
+    starts with their centres, one per slice below its first node past the junction
+    (each at the cells' median distance, at the centre of their turn angles: the noise
+    averaged out), and its width there is the arc the cells span in turn angle at that
+    distance (the noise moves no point in turn angle). Returns (stem_label, leaf_label,
+    midribs, {leaf: the widths of the nodes its midrib starts with}).
+    """
+    image = _axis_range_image(pts, noise, base_z=base_z, slice_m=slice_m, sector_deg=sector_deg,
+                              max_miss_m=max_miss_m)
+    if image is None or not midribs:
+        return stem_label, leaf_label, midribs, {}
+    ns, n_cells = image.n_sectors, image.n_levels * image.n_sectors
+    below = image.cells < int(math.floor((top_z - base_z) / slice_m)) * ns
+    on_stem = below & (image.median_s >= 0.0)
+    if not on_stem.any():
+        return stem_label, leaf_label, midribs, {}
+    stem_s = float(np.median(image.median_s[on_stem]))
+    error = FRONT_SIGMAS * 1.2533 * image.sigma_s / np.sqrt(image.count)
+    leafy = (image.count >= 3) & np.where(below, image.median_s > stem_s + error,
+                                         np.abs(image.median_s) <= column_m + error)
+    # The leaf most of each cell's points are (at least half of them), if any.
+    index_of = np.full(n_cells, -1, dtype=np.int64)
+    index_of[image.cells] = np.arange(len(image.cells))
+    labels = leaf_label[image.point]
+    votes = np.zeros((len(image.cells), len(midribs) + 1))
+    np.add.at(votes, (index_of[image.cell], np.where(labels >= 0, labels, len(midribs))), 1.0)
+    owner = np.full(n_cells, -1, dtype=np.int64)
+    held = leafy & (votes[:, :-1].sum(axis=1) >= 0.5 * image.count)
+    owner[image.cells[held]] = votes[held, :-1].argmax(axis=1)
+    is_leafy = np.zeros(n_cells, dtype=bool)
+    is_leafy[image.cells[leafy]] = True
+    frontier = image.cells[held]
+    while len(frontier):
+        level, sector = np.divmod(frontier, ns)
+        reached = []
+        for nb, ok in (((level - 1) * ns + sector, level > 0), ((level + 1) * ns + sector, level + 1 < image.n_levels),
+                       (level * ns + (sector + 1) % ns, True), (level * ns + (sector - 1) % ns, True)):
+            nb, src = nb[ok], frontier[ok]
+            take = is_leafy[nb] & (owner[nb] < 0)
+            nb, src = nb[take], src[take]
+            nb, first = np.unique(nb, return_index=True)
+            owner[nb] = owner[src[first]]
+            reached.append(nb)
+        frontier = np.unique(np.concatenate(reached))
+    gained = (owner[image.cell] >= 0) & (labels < 0)
+    if not gained.any():
+        return stem_label, leaf_label, midribs, {}
+    stem_label, leaf_label, midribs = stem_label.copy(), leaf_label.copy(), list(midribs)
+    stem_label[image.point[gained]] = -1
+    leaf_label[image.point[gained]] = owner[image.cell[gained]]
+    base_widths: dict[int, np.ndarray] = {}
+    cells = np.unique(image.cell[gained])
+    for li in np.unique(owner[cells]):
+        mine = cells[owner[cells] == li]
+        k = index_of[mine]
+        level, sector = np.divmod(mine, ns)
+        phi = np.radians((sector + 0.5) * 360.0 / ns)
+        x, y, w = image.median_s[k] * np.cos(phi), image.median_s[k] * np.sin(phi), image.count[k].astype(float)
+        levels = np.unique(level)
+        nodes = np.array([[np.average(x[level == lv], weights=w[level == lv]),
+                           np.average(y[level == lv], weights=w[level == lv]),
+                           base_z + (lv + 0.5) * slice_m] for lv in levels])
+        # A cell whose median lies past the axis (above the stem's top) is the leaf at the
+        # opposite turn angle.
+        facing = np.where(image.median_s[k] >= 0.0, sector, (sector + ns // 2) % ns)
+        widths = np.array([_arc_span(facing[level == lv], ns) * float(np.median(np.abs(image.median_s[k[level == lv]])))
+                           for lv in levels])
+        rib = midribs[li]
+        past = rib[1:] if len(rib) > 1 else rib  # the junction, on the stem, gives way
+        below_rib = nodes[:, 2] < past[0, 2]
+        if below_rib.any():
+            midribs[li] = np.vstack([nodes[below_rib], past])
+            base_widths[int(li)] = widths[below_rib]
+    return stem_label, leaf_label, midribs, base_widths
+
+
+def _arc_span(sectors: np.ndarray, n_sectors: int) -> float:
+    """The turn angle, radians, that a set of sectors (of ``n_sectors``) spans: the
+    circle less its largest gap."""
+    occupied = np.unique(sectors)
+    gaps = np.diff(np.r_[occupied, occupied[0] + n_sectors]) - 1
+    return float(n_sectors - int(gaps.max())) * 2.0 * math.pi / n_sectors
+
+
 def _drop_stem_noise_leaves(pts: np.ndarray, noise: np.ndarray, stem_label: np.ndarray,
                             leaf_label: np.ndarray, midribs: list[np.ndarray], stems: tuple[StemBase, ...],
                             tracks: list[np.ndarray], stem_tops: list, *, base_z: float, margin: float,
@@ -1746,6 +1861,15 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
         stem_label, leaf_label, midribs, n_stem_noise = _drop_stem_noise_leaves(
             pts, noise, stem_label, leaf_label, midribs, stems, axis_tracks, stem_tops,
             base_z=s.base_z, margin=v, reach=bin_w)
+    base_widths: dict[int, np.ndarray] = {}
+    if noise is not None and beam_tops is not None and midribs:
+        # A noisy stem on the axis: its leaves' bases in its column, from the beams.
+        for si, st in enumerate(stems):
+            if math.isfinite(beam_tops[si]):
+                stem_label, leaf_label, midribs, base_widths = _leaf_bases_from_beams(
+                    pts, noise, stem_label, leaf_label, midribs, top_z=float(stem_tops[si][2]),
+                    base_z=s.base_z, slice_m=2.0 * v, max_miss_m=0.25 * scale.spacing_m,
+                    column_m=_column_radius(st, column_margin))
     # A lamina and those hanging from it are one leaf, numbered by its first lamina.
     parents = _remap_parents(chain_label, leaf_label, chain_parent, len(midribs))
     links = np.array([(i, p) for i, p in enumerate(parents) if p >= 0], dtype=np.int64).reshape(-1, 2)
@@ -1757,4 +1881,5 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
                         stems=stems, stem_tops_m=np.array(stem_tops, dtype=np.float64).reshape(-1, 3),
                         leaf_midribs=tuple(midribs), scale=scale, min_leaf_length_m=float(min_leaf),
                         link_m=float(s.link_factor * v), sparse_branches=n_sparse,
-                        leaf_group=groups, stem_noise_branches=n_stem_noise)
+                        leaf_group=groups, stem_noise_branches=n_stem_noise,
+                        leaf_base_widths_m=tuple(base_widths.get(i, np.zeros(0)) for i in range(len(midribs))))

@@ -1037,9 +1037,20 @@ def leaf_noise_width(noise_m: np.ndarray, node: np.ndarray, tangent: np.ndarray,
     return float(np.median(extents)) if extents else _NAN
 
 
+def _base_widths_of(seg: "segmentation.Segmentation", i: int) -> np.ndarray | None:
+    """Leaf ``i``'s base node widths the beams read (``Segmentation.leaf_base_widths_m``), or None."""
+    widths = seg.leaf_base_widths_m[i] if i < len(seg.leaf_base_widths_m) else None
+    return widths if widths is not None and len(widths) else None
+
+
 def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None = None,
-                   noise_m: np.ndarray | None = None) -> tuple[float, float, float, float, float]:
+                   noise_m: np.ndarray | None = None, base_widths_m: np.ndarray | None = None
+                   ) -> tuple[float, float, float, float, float]:
     """Length, width, area, inclination and noise width of one segmented leaf.
+
+    ``base_widths_m``: the widths of the midrib's first nodes where the beams read them
+    (:attr:`plantsim.evaluation.segmentation.Segmentation.leaf_base_widths_m`), in place
+    of the points' there.
 
     Length: the midrib polyline (skeleton centroids, junction to tip) plus the leaf's
     reach beyond its last centroid. A stalk is left out of length, area and inclination:
@@ -1073,6 +1084,10 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     seg_len = np.linalg.norm(seg, axis=1)
     # Per node its width; each point to its nearest midrib node.
     tangent, normal, widths, node = node_frames(points, midrib, link=link)
+    if base_widths_m is not None:
+        # The base in a noisy stem's column, its widths read from the beams (segmentation
+        # ._leaf_bases_from_beams): the noise moves no point in turn angle there.
+        widths[:len(base_widths_m)] = base_widths_m[:len(widths)]
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     # The leaf's reach past its last node; none when no point is nearest that node (a
     # midrib can end past its points, as two merged halves' tips averaged do).
@@ -1236,7 +1251,8 @@ def _segment_above(pts: np.ndarray, s: TraitSettings, noise: np.ndarray | None =
         offsets=segmentation.shifted_grid_offsets(s.shifted_grids),
         range_noise_m=None if noise is None else noise[mask])
     counts = np.array([leaf_count_of(g) for g in grids])
-    areas = np.array([sum(_leaf_measures(g.points[g.leaf_label == i], m, link=g.link_m)[2]
+    areas = np.array([sum(_leaf_measures(g.points[g.leaf_label == i], m, link=g.link_m,
+                                         base_widths_m=_base_widths_of(g, i))[2]
                           for i, m in enumerate(g.leaf_midribs)) if len(g.leaf_midribs) else _NAN
                       for g in grids], dtype=np.float64)
     candidates = np.flatnonzero(counts == int(np.median(counts)))
@@ -1401,7 +1417,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         member = seg.leaf_label == i
         lp = seg.points[member]
         length, width, area, incl, noise_width = _leaf_measures(
-            lp, midrib, link=seg.link_m, noise_m=None if noise_seg is None else noise_seg[member])
+            lp, midrib, link=seg.link_m, noise_m=None if noise_seg is None else noise_seg[member],
+            base_widths_m=_base_widths_of(seg, i))
         resolved = (None if noise_seg is None or math.isnan(noise_width) or math.isnan(width)
                     else bool(noise_width < _RESOLVED_NOISE_SHARE * width))
         leaves.append(Leaf(index=i, length_m=length, width_m=width, n_points=int(len(lp)),
