@@ -14,9 +14,11 @@ lost to the stem and noise widening the rest. A third line reads the found leave
 which 60 % or more of the points are one true leaf's against that leaf: the median (and
 range) of their length and width errors, and how far above the true leaf's insertion
 their midrib starts. On a realistic scan that line says why an area is right or wrong:
-the 3-leaf maize's two leaves that are mostly one true leaf's start 125-127 mm above
-their insertions (the lower part of a leaf rising along the stem lies in the noisy
-stem's column) and read 27-48 % short, while the noise widens them +5..+16 %.
+the lower part of a maize leaf rises along the stem in the noisy stem's column, and
+until its base was read from the beams (segmentation._leaf_bases_from_beams) the
+3-leaf maize's two leaves that are mostly one true leaf's started 125-127 mm above
+their insertions and read 27-48 % short, while the noise widened them +5..+16 %; they
+now start 14-50 mm above and read -22..+9 %.
 
     python scripts/traits_accuracy.py            # both settings
     python scripts/traits_accuracy.py --step 2   # a quick look at 2 deg
