@@ -50,8 +50,8 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    they touch. In the same range image a leaf standing in front of such a stem, or in
    its column above its top, is read from the cells' medians: the leaf's base, which
    rises in the noisy column for 10 cm or more on a maize, goes to the leaf, with its
-   midrib and widths there (:func:`_leaf_bases_from_beams`). Every other tip whose branch (tip to the junction
-   below it) is longer than ``min_leaf_length_m`` is a leaf tip, and so is a tip
+   midrib and widths there (:func:`_leaf_bases_from_beams`). Every other tip whose
+   branch (tip to the junction below it) is longer than ``min_leaf_length_m`` is a leaf tip, and so is a tip
    hanging from a stem piece that lies that far out of the stem's column: a
    noisy stem fills a column several
    centimetres wide whose level sets hold most of a short leaf (a bean's
@@ -1287,8 +1287,12 @@ def beam_stem_top(points_turntable: Any, range_noise_m: Any, *, base_z: float, s
             and math.isfinite(max_miss_m) and max_miss_m >= 0 and math.isfinite(base_z)):
         raise ValueError(f"slice_m must be > 0, sector_deg in (0, 90], max_miss_m >= 0 and base_z finite, got "
                          f"{slice_m!r}, {sector_deg!r}, {max_miss_m!r}, {base_z!r}")
-    image = _axis_range_image(pts, noise, base_z=base_z, slice_m=slice_m, sector_deg=sector_deg,
-                              max_miss_m=max_miss_m)
+    return _stem_top_in(_axis_range_image(pts, noise, base_z=base_z, slice_m=slice_m, sector_deg=sector_deg,
+                                          max_miss_m=max_miss_m), base_z=base_z, slice_m=slice_m)
+
+
+def _stem_top_in(image: "_RangeImage | None", *, base_z: float, slice_m: float) -> float:
+    """:func:`beam_stem_top` on a range image (None: NaN)."""
     if image is None or image.n_levels < 7:
         return math.nan
     closed = np.zeros(image.n_levels * image.n_sectors, dtype=bool)
@@ -1343,7 +1347,8 @@ def _axis_range_image(pts: np.ndarray, noise: np.ndarray, *, base_z: float, slic
     starts = np.r_[0, np.flatnonzero(np.diff(cell_sorted)) + 1]
     counts = np.diff(np.r_[starts, len(cell_sorted)])
     median = 0.5 * (s_sorted[starts + (counts - 1) // 2] + s_sorted[starts + counts // 2])
-    sigma_s = np.array([np.median(g) for g in np.split(horizontal[use][order], starts[1:])])
+    noise_sorted = horizontal[use][np.lexsort((horizontal[use], cell))]
+    sigma_s = 0.5 * (noise_sorted[starts + (counts - 1) // 2] + noise_sorted[starts + counts // 2])
     return _RangeImage(point=use, cell=cell, s=s, cells=cell_sorted[starts], median_s=median, count=counts,
                        sigma_s=sigma_s, n_levels=int(level.max()) + 1, n_sectors=n_sectors)
 
@@ -1353,17 +1358,17 @@ def _axis_range_image(pts: np.ndarray, noise: np.ndarray, *, base_z: float, slic
 FRONT_SIGMAS = 3.0
 
 
-def _leaf_bases_from_beams(pts: np.ndarray, noise: np.ndarray, stem_label: np.ndarray, leaf_label: np.ndarray,
+def _leaf_bases_from_beams(image: _RangeImage, stem_label: np.ndarray, leaf_label: np.ndarray,
                            midribs: list[np.ndarray], *, top_z: float, base_z: float, slice_m: float,
-                           max_miss_m: float, column_m: float, sector_deg: float = 3.0
-                           ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], dict[int, np.ndarray]]:
+                           column_m: float) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], dict[int, np.ndarray]]:
     """Give each leaf the base it has in a noisy stem's column, from the beams.
 
     A leaf leaving a noisy stem on the axis steeply (a maize leaf rises along its stem
     for 10 cm or more) lies in the stem's noisy column, where its points are stem or
     nothing to the skeleton: the leaf began where it left the column, 12-18 cm above its
     insertion, and read a quarter short. In the range image of turn angle and height
-    (:func:`beam_stem_top`; the stem ends at ``top_z``) a cell holds the first hits of
+    (``image``, :func:`beam_stem_top`'s, in slices of ``slice_m`` from ``base_z``; the
+    stem ends at ``top_z``) a cell holds the first hits of
     its beams, the stem's or those of a leaf standing in front of it, and its median
     distance from the axis towards the sensor reads which, although each point is 12 mm
     noisy: the stem's cells read its radius (the median over the cells on the
@@ -1379,9 +1384,7 @@ def _leaf_bases_from_beams(pts: np.ndarray, noise: np.ndarray, stem_label: np.nd
     distance (the noise moves no point in turn angle). Returns (stem_label, leaf_label,
     midribs, {leaf: the widths of the nodes its midrib starts with}).
     """
-    image = _axis_range_image(pts, noise, base_z=base_z, slice_m=slice_m, sector_deg=sector_deg,
-                              max_miss_m=max_miss_m)
-    if image is None or not midribs:
+    if not midribs:
         return stem_label, leaf_label, midribs, {}
     ns, n_cells = image.n_sectors, image.n_levels * image.n_sectors
     below = image.cells < int(math.floor((top_z - base_z) / slice_m)) * ns
@@ -1642,18 +1645,20 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     stems = find_stems(pts, base_z=s.base_z, scale=scale, max_diameter_m=s.max_stem_diameter_m)
     # A noisy stem on the axis ends where the beams stop meeting it (beam_stem_top), which
     # no grid changes; the walk up its noisy column goes on up the leaves rising in it.
-    beam_tops = [math.nan] * len(stems)
-    if noise is not None:
-        for si, st in enumerate(stems):
-            if not st.diameter_resolved and math.hypot(*st.center_xy_m) <= 0.5 * st.diameter_m:
-                beam_tops[si] = beam_stem_top(pts, noise, base_z=s.base_z, slice_m=2.0 * scale.voxel_m,
-                                              max_miss_m=0.25 * scale.spacing_m)
-    return tuple(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops) for g in grids)
+    on_axis = [noise is not None and not st.diameter_resolved and math.hypot(*st.center_xy_m) <= 0.5 * st.diameter_m
+               for st in stems]
+    image = None
+    if any(on_axis):
+        image = _axis_range_image(pts, noise, base_z=s.base_z, slice_m=2.0 * scale.voxel_m, sector_deg=3.0,
+                                  max_miss_m=0.25 * scale.spacing_m)
+    top = _stem_top_in(image, base_z=s.base_z, slice_m=2.0 * scale.voxel_m)
+    beam_tops = [top if axis else math.nan for axis in on_axis]
+    return tuple(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image) for g in grids)
 
 
 def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems: tuple[StemBase, ...],
                      s: SegmentationSettings, noise: np.ndarray | None = None,
-                     beam_tops: list[float] | None = None) -> Segmentation:
+                     beam_tops: list[float] | None = None, image: _RangeImage | None = None) -> Segmentation:
     """The skeleton and organs of the kept points ``pts`` on one grid (``s.grid_offset``)."""
     v = scale.voxel_m
     nodes, inverse = voxel_centroids(pts, v, s.grid_offset[:3])
@@ -1862,14 +1867,13 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
             pts, noise, stem_label, leaf_label, midribs, stems, axis_tracks, stem_tops,
             base_z=s.base_z, margin=v, reach=bin_w)
     base_widths: dict[int, np.ndarray] = {}
-    if noise is not None and beam_tops is not None and midribs:
+    if image is not None and beam_tops is not None and midribs:
         # A noisy stem on the axis: its leaves' bases in its column, from the beams.
         for si, st in enumerate(stems):
             if math.isfinite(beam_tops[si]):
                 stem_label, leaf_label, midribs, base_widths = _leaf_bases_from_beams(
-                    pts, noise, stem_label, leaf_label, midribs, top_z=float(stem_tops[si][2]),
-                    base_z=s.base_z, slice_m=2.0 * v, max_miss_m=0.25 * scale.spacing_m,
-                    column_m=_column_radius(st, column_margin))
+                    image, stem_label, leaf_label, midribs, top_z=float(stem_tops[si][2]),
+                    base_z=s.base_z, slice_m=2.0 * v, column_m=_column_radius(st, column_margin))
     # A lamina and those hanging from it are one leaf, numbered by its first lamina.
     parents = _remap_parents(chain_label, leaf_label, chain_parent, len(midribs))
     links = np.array([(i, p) for i, p in enumerate(parents) if p >= 0], dtype=np.int64).reshape(-1, 2)
