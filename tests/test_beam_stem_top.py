@@ -7,6 +7,7 @@ are ray-cast exactly (a cylinder and flat plates), with Gaussian range noise alo
 """
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -68,6 +69,12 @@ def test_the_beams_read_a_noisy_stems_top_where_a_steep_leaf_rises_above_it(seed
     assert not t.stems[0].diameter_resolved
     assert t.stem_height_m == pytest.approx(0.30, rel=0.03)
     assert t.leaf_count == 2
+    # The traits say where the top came from and where the walk would have put it.
+    (note,) = [n for n in t.notes if "stop meeting it" in n]
+    up_mm, walk_mm = (float(x) for x in re.search(r"it, (\d+) mm up, .* went on to (\d+) mm", note).groups())
+    assert up_mm == pytest.approx(300, abs=10) and walk_mm >= 380
+    # Without the range noise nothing is read from the beams.
+    assert not [n for n in traits.extract_traits(pts).notes if "stop meeting it" in n]
 
 
 def test_the_beams_read_nothing_where_they_cannot_tell():
@@ -115,6 +122,7 @@ def test_a_leaf_rising_in_a_noisy_stems_column_is_read_from_its_insertion(seed):
     t = traits.extract_traits(pts, range_noise_m=noise)
     seg = traits.segment_for_traits(pts, range_noise_m=noise)
     assert t.leaf_count == 2
+    assert any("2 leaves' bases in the column read from the beams" in n for n in t.notes)
     bases = sorted(float(m[0, 2]) for m in seg.leaf_midribs)
     assert bases[0] == pytest.approx(0.12, abs=0.035) and bases[1] == pytest.approx(0.25, abs=0.035)
     for leaf in t.leaves:

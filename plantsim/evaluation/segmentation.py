@@ -763,6 +763,9 @@ class Segmentation:
         leaf_base_widths_m: per leaf (empty, or none given: none), the widths, metres, of
             the nodes its midrib starts with where the beams read its base in a noisy
             stem's column (:func:`_leaf_bases_from_beams`: the arc its cells span).
+        stem_walk_tops_z_m: per stem, the z its skeleton walk reached where the beams say
+            it ends lower (``stem_tops_m``; :func:`beam_stem_top`), NaN elsewhere; empty:
+            none given.
         stem_noise_branches: branches long enough to be leaves whose points the range
             noise given spread from a stem (:func:`_drop_stem_noise_leaves`; step 8): not
             counted, their points the stem's. 0 without the range noise.
@@ -782,6 +785,7 @@ class Segmentation:
     leaf_group: tuple[int, ...] = ()
     stem_noise_branches: int = 0
     leaf_base_widths_m: tuple[np.ndarray, ...] = ()
+    stem_walk_tops_z_m: tuple[float, ...] = ()
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
@@ -1719,6 +1723,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     is_stem_piece = np.full(n_pieces, -1, dtype=np.int64)
     stem_tops = []
     cap_z = [math.nan] * len(stems)  # where the beams say a stem ends below its walk's top
+    walk_top_z = [math.nan] * len(stems)  # and where its walk went
     axis_tracks: list[np.ndarray] = []  # per stem, (k, 3): z, x, y of its axis
     for si, st in enumerate(stems):
         c0 = np.array(st.center_xy_m)
@@ -1777,6 +1782,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
                     walks.append((k, axis_xy))
         top_xyz = centroid[top].tolist()
         if beam_tops is not None and math.isfinite(beam_tops[si]) and beam_tops[si] < top_xyz[2]:
+            walk_top_z[si] = top_xyz[2]
             top_xyz[2] = float(beam_tops[si])
             cap_z[si] = float(beam_tops[si])
         stem_tops.append(top_xyz)
@@ -1886,4 +1892,5 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
                         leaf_midribs=tuple(midribs), scale=scale, min_leaf_length_m=float(min_leaf),
                         link_m=float(s.link_factor * v), sparse_branches=n_sparse,
                         leaf_group=groups, stem_noise_branches=n_stem_noise,
-                        leaf_base_widths_m=tuple(base_widths.get(i, np.zeros(0)) for i in range(len(midribs))))
+                        leaf_base_widths_m=tuple(base_widths.get(i, np.zeros(0)) for i in range(len(midribs))),
+                        stem_walk_tops_z_m=tuple(walk_top_z))

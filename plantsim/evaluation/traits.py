@@ -1410,6 +1410,17 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
             notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: diameter "
                          f"not resolved, {1e3 * st.diameter_m:.0f} mm is the width of its noisy column in the "
                          "base slices (no ring fits), an upper bound")
+    for si, st in enumerate(seg.stems):
+        walk = seg.stem_walk_tops_z_m[si] if si < len(seg.stem_walk_tops_z_m) else _NAN
+        if math.isfinite(walk):
+            from_beams = sum(1 for w in seg.leaf_base_widths_m if len(w))
+            notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: it ends "
+                         f"where the beams through the turntable's axis stop meeting it, "
+                         f"{1e3 * (seg.stem_tops_m[si, 2] - s.base_z):.0f} mm up, and its height is read from "
+                         "its points below (the skeleton's walk up its noisy column went on to "
+                         f"{1e3 * (walk - s.base_z):.0f} mm); {from_beams} "
+                         f"{'leaf' if from_beams == 1 else 'leaves'}' bases in the column read from the beams "
+                         "(segmentation.beam_stem_top)")
     pairs, mean_pair, mean_nn = stem_distances(stems)
     leaves: list[Leaf] = []
     groups = leaf_groups_of(seg)
