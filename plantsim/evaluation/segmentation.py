@@ -1292,13 +1292,14 @@ def beam_stem_top(points_turntable: Any, range_noise_m: Any, *, base_z: float, s
         raise ValueError(f"slice_m must be > 0, sector_deg in (0, 90], max_miss_m >= 0 and base_z finite, got "
                          f"{slice_m!r}, {sector_deg!r}, {max_miss_m!r}, {base_z!r}")
     return _stem_top_in(_axis_range_image(pts, noise, base_z=base_z, slice_m=slice_m, sector_deg=sector_deg,
-                                          max_miss_m=max_miss_m), base_z=base_z, slice_m=slice_m)
+                                          max_miss_m=max_miss_m))
 
 
-def _stem_top_in(image: "_RangeImage | None", *, base_z: float, slice_m: float) -> float:
+def _stem_top_in(image: "_RangeImage | None") -> float:
     """:func:`beam_stem_top` on a range image (None: NaN)."""
     if image is None or image.n_levels < 7:
         return math.nan
+    base_z, slice_m = image.base_z, image.slice_m
     closed = np.zeros(image.n_levels * image.n_sectors, dtype=bool)
     closed[image.cells] = image.median_s >= 0.0
     open_share = 1.0 - closed.reshape(image.n_levels, image.n_sectors).mean(axis=1)
@@ -1317,13 +1318,14 @@ class _RangeImage(typing.NamedTuple):
 
     point: np.ndarray  # (m,) index into the points of each point used
     cell: np.ndarray  # (m,) its cell, level * n_sectors + sector
-    s: np.ndarray  # (m,) its signed distance from the axis towards the sensor, metres
     cells: np.ndarray  # (c,) the occupied cells, ascending
     median_s: np.ndarray  # (c,) the median s of each
     count: np.ndarray  # (c,) points in each
     sigma_s: np.ndarray  # (c,) the median noise of s in each (sigma times the beam's horizontal part)
     n_levels: int
     n_sectors: int
+    base_z: float  # the lowest slice's bottom, metres
+    slice_m: float  # the slices' thickness, metres
 
 
 def _axis_range_image(pts: np.ndarray, noise: np.ndarray, *, base_z: float, slice_m: float, sector_deg: float,
@@ -1353,8 +1355,9 @@ def _axis_range_image(pts: np.ndarray, noise: np.ndarray, *, base_z: float, slic
     median = 0.5 * (s_sorted[starts + (counts - 1) // 2] + s_sorted[starts + counts // 2])
     noise_sorted = horizontal[use][np.lexsort((horizontal[use], cell))]
     sigma_s = 0.5 * (noise_sorted[starts + (counts - 1) // 2] + noise_sorted[starts + counts // 2])
-    return _RangeImage(point=use, cell=cell, s=s, cells=cell_sorted[starts], median_s=median, count=counts,
-                       sigma_s=sigma_s, n_levels=int(level.max()) + 1, n_sectors=n_sectors)
+    return _RangeImage(point=use, cell=cell, cells=cell_sorted[starts], median_s=median, count=counts,
+                       sigma_s=sigma_s, n_levels=int(level.max()) + 1, n_sectors=n_sectors, base_z=base_z,
+                       slice_m=slice_m)
 
 
 # A cell of the range image stands in front of a stem when its median distance from the
@@ -1363,16 +1366,14 @@ FRONT_SIGMAS = 3.0
 
 
 def _leaf_bases_from_beams(image: _RangeImage, stem_label: np.ndarray, leaf_label: np.ndarray,
-                           midribs: list[np.ndarray], *, top_z: float, base_z: float, slice_m: float,
-                           column_m: float) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], dict[int, np.ndarray]]:
+                           midribs: list[np.ndarray], *, top_z: float, column_m: float) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], dict[int, np.ndarray]]:
     """Give each leaf the base it has in a noisy stem's column, from the beams.
 
     A leaf leaving a noisy stem on the axis steeply (a maize leaf rises along its stem
     for 10 cm or more) lies in the stem's noisy column, where its points are stem or
     nothing to the skeleton: the leaf began where it left the column, 12-18 cm above its
     insertion, and read a quarter short. In the range image of turn angle and height
-    (``image``, :func:`beam_stem_top`'s, in slices of ``slice_m`` from ``base_z``; the
-    stem ends at ``top_z``) a cell holds the first hits of
+    (``image``, :func:`beam_stem_top`'s; the stem ends at ``top_z``) a cell holds the first hits of
     its beams, the stem's or those of a leaf standing in front of it, and its median
     distance from the axis towards the sensor reads which, although each point is 12 mm
     noisy: the stem's cells read its radius (the median over the cells on the
@@ -1391,6 +1392,7 @@ def _leaf_bases_from_beams(image: _RangeImage, stem_label: np.ndarray, leaf_labe
     if not midribs:
         return stem_label, leaf_label, midribs, {}
     ns, n_cells = image.n_sectors, image.n_levels * image.n_sectors
+    base_z, slice_m = image.base_z, image.slice_m
     below = image.cells < int(math.floor((top_z - base_z) / slice_m)) * ns
     on_stem = below & (image.median_s >= 0.0)
     if not on_stem.any():
@@ -1655,7 +1657,7 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     if any(on_axis):
         image = _axis_range_image(pts, noise, base_z=s.base_z, slice_m=2.0 * scale.voxel_m, sector_deg=3.0,
                                   max_miss_m=0.25 * scale.spacing_m)
-    top = _stem_top_in(image, base_z=s.base_z, slice_m=2.0 * scale.voxel_m)
+    top = _stem_top_in(image)
     beam_tops = [top if axis else math.nan for axis in on_axis]
     return tuple(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image) for g in grids)
 
@@ -1722,8 +1724,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     column_margin = 2.5 * scale.noise_m + v
     is_stem_piece = np.full(n_pieces, -1, dtype=np.int64)
     stem_tops = []
-    cap_z = [math.nan] * len(stems)  # where the beams say a stem ends below its walk's top
-    walk_top_z = [math.nan] * len(stems)  # and where its walk went
+    walk_top_z = [math.nan] * len(stems)  # where a walk went, when the beams end its stem lower
     axis_tracks: list[np.ndarray] = []  # per stem, (k, 3): z, x, y of its axis
     for si, st in enumerate(stems):
         c0 = np.array(st.center_xy_m)
@@ -1784,7 +1785,6 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
         if beam_tops is not None and math.isfinite(beam_tops[si]) and beam_tops[si] < top_xyz[2]:
             walk_top_z[si] = top_xyz[2]
             top_xyz[2] = float(beam_tops[si])
-            cap_z[si] = float(beam_tops[si])
         stem_tops.append(top_xyz)
         axis_tracks.append(np.array(track))
 
@@ -1861,7 +1861,8 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     if len(stems) and len(leaf_chains):
         stem_label, leaf_label = _release_leaf_bases(
             pts, stem_label, leaf_label, stems, axis_tracks, margin=column_margin,
-            link=2 * s.link_factor * v + 8 * scale.noise_m, tops_z=cap_z)
+            link=2 * s.link_factor * v + 8 * scale.noise_m,
+            tops_z=[top[2] if math.isfinite(walk) else math.nan for top, walk in zip(stem_tops, walk_top_z)])
     midribs = [centroid[np.array(ch)] for ch in leaf_chains]
     chain_label = leaf_label
     leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)
@@ -1879,7 +1880,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
             if math.isfinite(beam_tops[si]):
                 stem_label, leaf_label, midribs, base_widths = _leaf_bases_from_beams(
                     image, stem_label, leaf_label, midribs, top_z=float(stem_tops[si][2]),
-                    base_z=s.base_z, slice_m=2.0 * v, column_m=_column_radius(st, column_margin))
+                    column_m=_column_radius(st, column_margin))
     # A lamina and those hanging from it are one leaf, numbered by its first lamina.
     parents = _remap_parents(chain_label, leaf_label, chain_parent, len(midribs))
     links = np.array([(i, p) for i, p in enumerate(parents) if p >= 0], dtype=np.int64).reshape(-1, 2)
