@@ -633,7 +633,7 @@ def test_a_midrib_ending_past_its_points_is_measured_not_refused():
     rng = np.random.default_rng(0)
     pts = _strip(rng, 0.1, 0.02, 500)
     midrib = np.array([[0.0, 0.0, 0.0], [0.03, 0.0, 0.0], [0.06, 0.0, 0.0], [0.09, 0.0, 0.0], [0.30, 0.0, 0.0]])
-    length, width, area, incl, _ = traits._leaf_measures(pts, midrib)
+    length, width, area, incl = traits._leaf_measures(pts, midrib)[:4]
     assert length == pytest.approx(0.30)
     assert width == pytest.approx(0.02, rel=0.1)
     assert incl == pytest.approx(0.0)
@@ -698,6 +698,10 @@ def test_a_leaf_widened_by_noise_in_its_plane_is_flagged_not_one_with_noise_alon
     assert f"reads {round(1e3 * leaf.noise_width_m)} mm across 1 of 1 leaves" in note
     assert "100 % of the leaf area" in note
     assert traits.extract_traits(pts).leaves[0].width_resolved is None
+    # Every beam runs along the width: no plane across them explains the points' spread
+    # along them as noise, and nothing is read across them.
+    assert leaf.width_across_beams_share == 0.0
+    assert not [n for n in t.notes if n.startswith("leaf widths read across the beams")]
 
     pts, noise = _leaf_under_beam_noise(rng, 0.008, (0.0, 0.0, 1.0))
     t = traits.extract_traits(pts, range_noise_m=noise)
@@ -708,7 +712,7 @@ def test_a_leaf_widened_by_noise_in_its_plane_is_flagged_not_one_with_noise_alon
     assert leaf.width_m == pytest.approx(0.040, rel=0.06)
     assert leaf.noise_width_m < 0.05 * leaf.width_m
     assert leaf.width_resolved is True
-    assert not [n for n in t.notes if n.startswith("leaf widths")]
+    assert not [n for n in t.notes if n.startswith("leaf widths not resolved")]
 
 
 def test_a_noiseless_sensor_resolves_every_width_and_bad_noise_vectors_are_refused():
