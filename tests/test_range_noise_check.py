@@ -228,6 +228,9 @@ def test_evaluate_scan_writes_the_check_and_the_notes_into_the_sidecar_object(tm
     out = ev.to_dict()["traits"]
     assert "read back from each point's intensity" in out["leaf_widths_checked_against"]
     assert out["leaf_widths_resolved"] == [lf.width_resolved for lf in ev.estimate.leaves]
+    shares = out["leaf_widths_across_beams_share"]
+    assert shares == [lf.width_across_beams_share for lf in ev.estimate.leaves]
+    assert all(0.0 <= x <= 1.0 for x in shares)
     assert out["notes"] == list(ev.estimate.notes)
     assert any(n.startswith("stem at") for n in out["notes"])  # the noisy stem's bound is said
 

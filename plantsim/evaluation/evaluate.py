@@ -129,6 +129,8 @@ class Evaluation:
             if self.estimate is not None:
                 out["traits"]["notes"] = list(self.estimate.notes)
                 out["traits"]["leaf_widths_resolved"] = [lf.width_resolved for lf in self.estimate.leaves]
+                out["traits"]["leaf_widths_across_beams_share"] = metrics._to_jsonable(
+                    [lf.width_across_beams_share for lf in self.estimate.leaves])
             if self.range_noise_source is not None:
                 out["traits"]["leaf_widths_checked_against"] = self.range_noise_source
         out["time_s"] = self.time_s

@@ -29,8 +29,9 @@ simple estimator; its limits are stated where it is defined:
   the stems found base-up); per leaf, length along the midrib, width across it, area
   as the ribbon between its margins and inclination (:func:`_leaf_measures`). Noise
   widens a width by about its spread across the leaf: given each point's range noise
-  along its beam, each width is checked against the width that noise alone reads
-  (:func:`leaf_noise_width`, ``Leaf.width_resolved``). :func:`leaf_length_width` measures
+  along its beam, each cross-section's width is read where the beams meet the leaf
+  (:func:`across_beam_width`), and where they cannot, checked against the width that
+  noise alone reads (:func:`leaf_noise_width`, ``Leaf.width_resolved``). :func:`leaf_length_width` measures
   one leaf's points alone (geodesic double sweep, bins along the geodesic distance, the
   widest bin across the local direction): on flat and curled strips both within 2 %.
 - convex-hull volume: scipy ``ConvexHull`` of all points above the base.
@@ -220,9 +221,10 @@ class Leaf:
             of theirs or more: a strip read that wide reads 23 % or more wide) and their
             beams could not read them (:func:`across_beam_width`): the width, and the
             area built from it, read the noise; None when not checked.
-        width_across_beams_share: the share of those cross-sections whose width the
-            noise read and which were read across their beams instead
-            (:func:`across_beam_width`); NaN when the noise was not given.
+        width_across_beams_share: the share of the cross-sections the width is read
+            over whose width was read where their beams meet the leaf
+            (:func:`across_beam_width`), not from their points' spread; NaN when the
+            noise was not given.
         group: the leaf this lamina belongs to, 0 to ``leaf_count - 1``: the leaflets
             of one compound leaf (laminae on one petiole) share it, a simple leaf has
             its own.
@@ -1248,9 +1250,15 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     profile); it fills holes inside a cross-section that occlusion leaves.
     Inclination: angle of the junction-to-tip chord (the lamina's base past a stalk)
     above the horizontal, degrees.
-    Noise width: :func:`leaf_noise_width` over the nodes the width is read over, given
-    ``noise_m`` ((m, 3) per point: its beam's unit direction times the range noise's
-    standard deviation); NaN without it.
+    Given ``noise_m`` ((m, 3) per point: its beam's unit direction times the range
+    noise's standard deviation), each node's width is read where its points' beams meet
+    the leaf (:func:`across_beam_width`, the twist fitted over the node and
+    ``_ACROSS_BEAM_TWIST_NODES`` either side), where the beams can read it; a base node
+    whose width the stem's column read as an arc takes that reading where it is wider.
+    Noise width: :func:`leaf_noise_width` over the nodes the width is read over; the
+    width is resolved unless half or more of them read the noise (its spread 45 % of
+    their width or more) and were not read across the beams. Without ``noise_m`` the
+    noise fields are NaN and None.
     """
     if len(midrib) < 2 or len(points) < 3:
         return _LeafMeasures(_NAN, _NAN, _NAN, _NAN, _NAN, None, _NAN)
@@ -1569,10 +1577,13 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
       With no branch long enough to be a leaf: count 0, area, length and width
       NaN (not measured, never 0) and a note naming the length a branch needed
       (``Segmentation.min_leaf_length_m``).
-    - with ``range_noise_m``, each leaf's width is checked against the width the
-      sensor's range noise alone reads across it (``Leaf.noise_width_m``,
-      :func:`leaf_noise_width`): at 45 % of the width or more, ``Leaf.width_resolved``
-      is False and a note gives the leaves and the share of the leaf area they hold.
+    - with ``range_noise_m``, each cross-section's width is read where its points'
+      beams meet the leaf (:func:`across_beam_width`; ``Leaf.width_across_beams_share``,
+      with a note), which the noise does not move; where the beams cannot read it, it
+      is checked against the width the sensor's range noise alone reads across it
+      (``Leaf.noise_width_m``, :func:`leaf_noise_width`): at 45 % of the width or more
+      on half the cross-sections, ``Leaf.width_resolved`` is False and a note gives the
+      leaves and the share of the leaf area they hold.
       A URG-04LX (10 mm noise floor along the beam) reads 9 mm wheat leaves 40-46 mm
       wide: the plane-fit noise the cloud itself shows (3-6 mm, across the surfaces)
       cannot see noise that lies in a leaf's plane; the beams' directions can.
@@ -1706,10 +1717,9 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         lo, hi = (round(100 * f(lf.width_across_beams_share for lf in across)) for f in (min, max))
         notes.append(f"leaf widths read across the beams on {len(across)} of {len(leaves)} leaves "
                      f"({lo if lo == hi else f'{lo}-{hi}'} % of the cross-sections their width is read "
-                     "over): there the range noise along each beam "
-                     "widened the points' spread across the midrib, and the width is their offset across "
-                     "the midrib and the beam, which the noise does not move, with the leaf's twist out of "
-                     "that direction read from the points (across_beam_width)")
+                     "over): the range noise moves each point along its beam, and there the width is read "
+                     "where the beams meet the leaf, which the noise does not move, its twist fitted to the "
+                     "points (across_beam_width); elsewhere from the points' spread")
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
     # top; no stem can then read taller than the plant.
