@@ -65,7 +65,7 @@ def main() -> None:
                                   if np.isfinite(x)]
             h, n, a = (np.array(col, dtype=float) for col in zip(*rows))
             print(f"{name:10s} {setting:16s} height {' '.join(f'{x:+.1f}' for x in h)} % | "
-                  f"leaves {' '.join(str(int(x)) for x in n)} /{len(truth['leaves'])} | "
+                  f"leaves {' '.join(str(int(x)) for x in n)} /{len(set(traits.true_leaf_groups(truth['leaves'])))} | "
                   f"area {' '.join(f'{x:+.0f}' for x in a)} % | range: leaves {int(n.min())}-{int(n.max())}, "
                   f"area {a.min():+.0f}..{a.max():+.0f} % | over {len(grid_counts)} grids: leaves "
                   f"{min(grid_counts)}-{max(grid_counts)}, area "
