@@ -1355,7 +1355,7 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     if noise_m is None:
         return _LeafMeasures(length, width, area, incl, _NAN, None, _NAN)
     checked = outer_nodes[np.isfinite(node_noise[outer_nodes])]
-    noise_width = float(np.median(node_noise[checked])) if len(checked) else _NAN
+    noise_width = leaf_noise_width(noise_m, node, tangent, normal, outer_nodes)
     resolved = None if not len(checked) else bool(np.mean(reads_noise[checked]) < 0.5)
     return _LeafMeasures(length, width, area, incl, noise_width, resolved,
                          float(np.mean(read_across[outer_nodes])))
