@@ -1,10 +1,12 @@
-"""What reading the plant height with the range noise costs (traits.beam_median_points).
+"""What reading the traits with the range noise costs (the height: traits.beam_median_points; the widths: traits.across_beam_width).
 
 Usage:
     PYTHONPATH=. python scripts/bench_traits_height.py [--runs 3]
 
 Given each point's range noise, ``extract_traits`` moves the points that can reach the
-top along their beams before reading the height. Per realistic 1-degree scan (the
+top along their beams before reading the height, and reads each leaf cross-section's
+width where its beams meet the leaf, on each of the shifted grids whose leaf areas it
+compares (since 2026-11-24). Per realistic 1-degree scan (the
 procedural 9-leaf maize, 4-tiller wheat and 3-leaf bean on the default rig; the 12-leaf
 and 30-leaf rosettes on the rig ``fit_rig`` picks, looking down, where the noise's band
 covers most of a flat plant and nearly every point is moved), ``extract_traits`` with
@@ -62,8 +64,10 @@ def main() -> None:
         t0, t1 = statistics.median(without), statistics.median(with_noise)
         moved = next((n.split(" read with the ")[1].split(" points")[0] for n in est.notes
                       if n.startswith("height:") and "moved along their beams" in n), "0")
+        across = sum(1 for lf in est.leaves if lf.width_across_beams_share > 0)
         print(f"{name:30s} {len(points):7,d} points: {t0:.2f} s without the noise, {t1:.2f} s with "
-              f"({t1 / t0:.2f}x; {moved} points moved)", flush=True)
+              f"({t1 / t0:.2f}x; {moved} points moved; widths read across the beams on {across} of "
+              f"{len(est.leaves)} leaves)", flush=True)
 
 
 if __name__ == "__main__":
