@@ -1071,6 +1071,8 @@ _ACROSS_BEAM_MAX_MEAN_Z2 = 2.0
 # deviations). Beams that all lie in one plane with the midrib meet every other plane
 # through it on one line, and leave the twist free.
 _ACROSS_BEAM_TWIST_FREE_DEG = 30.0
+# ... fitted on at most this many of the points (across_beam_width).
+_ACROSS_BEAM_FIT_POINTS = 3000
 _ACROSS_BEAM_MIN_COST_GAIN = 4.0
 # A leaf's width read across the beams at a midrib node fits its twist over the nodes
 # this many steps either side of it too (_leaf_measures).
@@ -1167,16 +1169,22 @@ def across_beam_width(offsets_m: Any, noise_m: Any, tangent: Any, *, own: Any = 
     def normals(phi: np.ndarray) -> np.ndarray:
         return np.outer(-np.sin(phi), e1) + np.outer(np.cos(phi), e2)  # t x width
 
-    def meets(phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def meets(phi: np.ndarray, rows: Any = slice(None)) -> tuple[np.ndarray, np.ndarray]:
         n = normals(phi)
-        bn = b @ n.T
+        bn = b[rows] @ n.T
         ok = np.abs(bn) >= _ACROSS_BEAM_POINT_MIN_SIN
-        lam = -(q @ n.T) / np.where(ok, bn, 1.0)
-        z2 = np.where(ok, (lam / sigma[:, None]) ** 2, np.inf)
+        lam = -(q[rows] @ n.T) / np.where(ok, bn, 1.0)
+        z2 = np.where(ok, (lam / sigma[rows, None]) ** 2, np.inf)
         return lam, z2
 
+    # The twist is fitted on at most _ACROSS_BEAM_FIT_POINTS of the points, every k-th:
+    # a blob of thousands of points (a flat plant seen from above as one leaf) holds its
+    # twist many times over, and each trial angle costs a pass over the points.
+    fit = (slice(None) if len(q) <= _ACROSS_BEAM_FIT_POINTS
+           else np.linspace(0, len(q) - 1, _ACROSS_BEAM_FIT_POINTS).round().astype(np.int64))
+
     def cost(phi: np.ndarray) -> np.ndarray:
-        return np.minimum(meets(phi)[1], limit).sum(axis=0)
+        return np.minimum(meets(phi, fit)[1], limit).sum(axis=0)
 
     grid = np.radians(np.arange(0.0, 180.0, 2.0))
     grid_cost = cost(grid)
