@@ -1071,9 +1071,9 @@ _ACROSS_BEAM_MAX_MEAN_Z2 = 2.0
 # deviations). Beams that all lie in one plane with the midrib meet every other plane
 # through it on one line, and leave the twist free.
 _ACROSS_BEAM_TWIST_FREE_DEG = 30.0
-# ... fitted on at most this many of the points (across_beam_width).
-_ACROSS_BEAM_FIT_POINTS = 3000
 _ACROSS_BEAM_MIN_COST_GAIN = 4.0
+# The twist is fitted on at most this many of the points (across_beam_width).
+_ACROSS_BEAM_FIT_POINTS = 3000
 # A leaf's width read across the beams at a midrib node fits its twist over the nodes
 # this many steps either side of it too (_leaf_measures).
 _ACROSS_BEAM_TWIST_NODES = 2
@@ -1101,7 +1101,7 @@ def across_beam_width(offsets_m: Any, noise_m: Any, tangent: Any, *, own: Any = 
     the axis they cross its width nearly at right angles, and its width is, the noise
     notwithstanding, about the arc its points' turn angles span (exact on a plane strip
     without noise: ``tests/test_across_beam_width.py``). A 10 mm leaf under 10 mm of
-    range noise reads its width within 8 % at twists of 0-50 deg, where its points
+    range noise reads its width within 8 % at twists of 0-45 deg, where its points
     spread two to three times as wide.
 
     NaN with under 6 points or a beam direction of length 0; when half the points'
@@ -1206,8 +1206,7 @@ def across_beam_width(offsets_m: Any, noise_m: Any, tangent: Any, *, own: Any = 
         return _NAN
     width_dir = math.cos(phi) * e1 + math.sin(phi) * e2
     on_plane = q[inlier] + lam[inlier, 0:1] * b[inlier]
-    width = uniform_width(on_plane @ width_dir)
-    return width
+    return uniform_width(on_plane @ width_dir)
 
 
 def _base_widths_of(seg: "segmentation.Segmentation", i: int) -> np.ndarray | None:
@@ -1280,9 +1279,9 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
         # The base in a noisy stem's column, its widths read from the beams (segmentation
         # ._leaf_bases_from_beams): the noise moves no point in turn angle there.
         widths[:len(base_widths_m)] = base_widths_m[:len(widths)]
-    # A cross-section whose width reads the range noise (its along-beam spread across
-    # the midrib 45 % of the width or more) is read across its beams instead, where they
-    # allow (across_beam_width).
+    # A cross-section whose points' width reads the range noise (its along-beam spread
+    # across the midrib 45 % of the width or more) and which its beams cannot read
+    # (across_beam_width) leaves the width unresolved.
     reads_noise = np.zeros(len(midrib), dtype=bool)
     read_across = np.zeros(len(midrib), dtype=bool)
     node_noise = np.full(len(midrib), _NAN)
@@ -1461,6 +1460,7 @@ class _Grids(typing.NamedTuple):
     leaf_counts: tuple[int, ...]
     leaf_areas_m2: tuple[float, ...]
     grids: tuple["segmentation.Segmentation", ...]  # every grid's, in the offsets' order
+    leaf_measures: tuple["_LeafMeasures", ...]  # the representative grid's, leaf by leaf
 
 
 def _segment_above(pts: np.ndarray, s: TraitSettings, noise: np.ndarray | None = None) -> _Grids:
@@ -1489,23 +1489,22 @@ def _segment_above(pts: np.ndarray, s: TraitSettings, noise: np.ndarray | None =
     counts = np.array([leaf_count_of(g) for g in grids])
     noise_above = None if noise is None else noise[mask]
 
-    def area_of(g: "segmentation.Segmentation") -> float:
-        if not len(g.leaf_midribs):
-            return _NAN
+    def measures_of(g: "segmentation.Segmentation") -> list[_LeafMeasures]:
         g_noise = None if noise_above is None else noise_above[g.kept]
-        return sum(_leaf_measures(g.points[g.leaf_label == i], m, link=g.link_m,
-                                  noise_m=None if g_noise is None else g_noise[g.leaf_label == i],
-                                  base_widths_m=_base_widths_of(g, i)).area_m2
-                   for i, m in enumerate(g.leaf_midribs))
+        return [_leaf_measures(g.points[g.leaf_label == i], m, link=g.link_m,
+                               noise_m=None if g_noise is None else g_noise[g.leaf_label == i],
+                               base_widths_m=_base_widths_of(g, i))
+                for i, m in enumerate(g.leaf_midribs)]
 
-    areas = np.array([area_of(g) for g in grids], dtype=np.float64)
+    measures = [measures_of(g) for g in grids]
+    areas = np.array([sum(lm.area_m2 for lm in ms) if ms else _NAN for ms in measures], dtype=np.float64)
     candidates = np.flatnonzero(counts == int(np.median(counts)))
     pick = int(candidates[0])
     known = candidates[np.isfinite(areas[candidates])]
     if len(known):
         pick = int(known[np.argmin(np.abs(areas[known] - float(np.median(areas[known]))))])
     return _Grids(above, grids[pick], tuple(int(c) for c in counts), tuple(float(a) for a in areas),
-                  tuple(grids))
+                  tuple(grids), tuple(measures[pick]))
 
 
 def segment_for_traits(points_turntable: Any, *, settings: TraitSettings | None = None,
@@ -1617,9 +1616,8 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     s = settings or TraitSettings()
     pts = on_file_grid(_as_cloud(points_turntable))
     noise = None if range_noise_m is None else segmentation.checked_range_noise(range_noise_m, pts)
-    above, seg, grid_counts, grid_areas, grids = _segment_above(pts, s, noise)
+    above, seg, grid_counts, grid_areas, grids, measures = _segment_above(pts, s, noise)
     noise_above = None if noise is None else noise[_above_mask(pts, s)]
-    noise_seg = None if noise is None else noise_above[seg.kept]
     notes: list[str] = []
     height_scale = seg.scale
     if noise is not None:
@@ -1671,12 +1669,9 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     pairs, mean_pair, mean_nn = stem_distances(stems)
     leaves: list[Leaf] = []
     groups = leaf_groups_of(seg)
-    for i, midrib in enumerate(seg.leaf_midribs):
-        member = seg.leaf_label == i
-        lp = seg.points[member]
-        lm = _leaf_measures(lp, midrib, link=seg.link_m, noise_m=None if noise_seg is None else noise_seg[member],
-                            base_widths_m=_base_widths_of(seg, i))
-        leaves.append(Leaf(index=i, length_m=lm.length_m, width_m=lm.width_m, n_points=int(len(lp)),
+    for i, lm in enumerate(measures):  # measured as the grid was chosen (_segment_above)
+        leaves.append(Leaf(index=i, length_m=lm.length_m, width_m=lm.width_m,
+                           n_points=int(np.count_nonzero(seg.leaf_label == i)),
                            area_m2=lm.area_m2, inclination_deg=lm.inclination_deg, noise_width_m=lm.noise_width_m,
                            width_resolved=lm.width_resolved, width_across_beams_share=lm.across_beams_share,
                            group=groups[i]))
