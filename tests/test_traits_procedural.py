@@ -23,8 +23,9 @@ the other tillers read as wide leaves) and realistic rosettes (6 leaves for 12, 
 -41 %; one leaf for 30, -82 %, which a note says is a ring of merged
 leaves, tested below); on the 3-leaf plants, the ideal rosette's height (-2.3 %: the
 top is a leaf's tip, and the URG's beams, 0.35 deg apart, pass 1.5 mm below it; with a
-fan three times finer the cloud's highest point lies 0.3 mm below it) and the realistic
-rosette's count (1 leaf). The point
+fan three times finer the cloud's highest point lies 0.3 mm below it). The realistic
+3-leaf rosette's leaves, one leaf in the noise round the axis, are split by azimuth
+(segmentation._split_at_axis): 3 on every grid, each matched to its true leaf. The point
 spacing the segmentation scales by is the median over the surface's area, measured on
 every point kept (segmentation.estimate_scale): as a 90th percentile over the points, on
 the points the outlier removal kept, it measured the stem of a small plant, which holds
@@ -179,7 +180,7 @@ def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
 # 1 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md);
 # so does the dicot (11 for 8: no leaflets grouped, its leaves split in two or three).
 @pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",))
-                         + _small("rosette3"))
+                         + _small())
 def test_leaf_count_from_a_realistic_scan_within_forty_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_count, _true_leaf_count(truth)) <= 0.40
@@ -431,6 +432,19 @@ def test_an_ideal_beans_leaves_are_read_without_their_petioles():
     m = _leaf_match("bean3", *IDEAL)
     errors = [est.leaf_lengths_m[f] / truth["leaves"][t]["length_m"] - 1 for f, t, _ in m.pairs]
     assert len(errors) == 3 and max(map(abs, errors)) <= 0.40, np.round(errors, 3)
+
+
+def test_a_noisy_rosettes_leaves_merged_round_its_axis_are_its_true_leaves():
+    # Under 10 mm of range noise the 3-leaf rosette's leaf bases are one disc round the
+    # axis, and its leaves read as one. Given the beams, they are split by azimuth
+    # (segmentation._split_at_axis): 3 on every shifted grid, each matched to its true
+    # leaf (IoU 0.71 mean), the area +25 % (+15..+44 % over the grids).
+    est, truth = _scan("rosette3", *REALISTIC)
+    assert set(est.leaf_counts_over_grids) == {3}
+    assert any("found by splitting leaves" in n for n in est.notes)
+    points, _ = _cloud("rosette3", *REALISTIC)
+    m = match_procedural_leaves(points, PLANTS["rosette3"](), range_noise_m=_RANGE_NOISE[("rosette3", *REALISTIC)])
+    assert m.true_positives == 3 and m.false_positives == 0, m.summary()
 
 
 def test_a_noisy_dicots_leaflets_are_found_apart_from_its_stem():

@@ -92,6 +92,15 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    stems); traits read the median grid and its spread, as an averaged shifted histogram
    removes a histogram's dependence on its bins' origin (Scott 1985, "Averaged shifted
    histograms", Annals of Statistics 13:1024-1040).
+10. Round the axis: given the range noise, on each grid after step 8. A turntable
+   rig's beams lie in planes through its axis, so the noise moves each point along a
+   line through the axis and leaves its azimuth about it. A rosette's leaves grow from
+   the axis, where the noise spreads their bases into one disc and joins them into
+   one leaf; beyond the disc, leaves apart in azimuth are apart in the points, and a
+   leaf whose points there fall into groups that empty sectors part, each as long as
+   a leaf, is that many leaves (:func:`_split_at_axis`). The realistic 3-leaf
+   rosette read one leaf for three without it, and reads its three, each matched to
+   its true leaf.
 
 Validity: plants with thin stems and strap or broad leaves attached to them
 (cereals, maize, seedlings), turntable frame with z up and the base at ``base_z``.
@@ -769,6 +778,9 @@ class Segmentation:
         stem_noise_branches: branches long enough to be leaves whose points the range
             noise given spread from a stem (:func:`_drop_stem_noise_leaves`; step 8): not
             counted, their points the stem's. 0 without the range noise.
+        axis_split_leaves: leaves found by splitting leaves merged round the axis by
+            the range noise, by azimuth (:func:`_split_at_axis`; step 10): 0 without
+            the range noise.
     """
 
     points: np.ndarray
@@ -786,6 +798,7 @@ class Segmentation:
     stem_noise_branches: int = 0
     leaf_base_widths_m: tuple[np.ndarray, ...] = ()
     stem_walk_tops_z_m: tuple[float, ...] = ()
+    axis_split_leaves: int = 0
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
@@ -1524,6 +1537,176 @@ def _drop_stem_noise_leaves(pts: np.ndarray, noise: np.ndarray, stem_label: np.n
     return stem_label, relabel[leaf_label], [midribs[i] for i in keep], int(drop.sum())
 
 
+# Leaves merged round the axis in the range noise are split by azimuth (_split_at_axis,
+# step 10): a leaf's points beyond its noise disc (AXIS_DISC_SIGMAS of its median range
+# noise, plus a voxel, from the axis) fall into several groups when sectors holding under
+# AZIMUTH_GAP_SHARE of the smaller neighbour's peak density part them, and each group
+# holds AZIMUTH_MIN_SHARE or more of those points. A group in whose sector another leaf
+# holds AZIMUTH_PIECE_SHARE as many points beyond the disc is a piece of that leaf. The
+# realistic 3-leaf rosette's three leaves, one leaf without the split, part at 0.1. On
+# synthetic 3-leaf rosettes whose grids cut a leaf in two (tests/test_axis_split.py),
+# the split reads 4-5 leaves without the piece rule, 4 on one of three at 1.0, and 3 on
+# every grid at 0.5.
+AXIS_DISC_SIGMAS = 2.0
+AZIMUTH_GAP_SHARE = 0.1
+AZIMUTH_MIN_SHARE = 0.1
+AZIMUTH_PIECE_SHARE = 0.5
+
+
+def _azimuth_groups(phi: np.ndarray, *, bandwidth: float, bins: int = 720) -> np.ndarray:
+    """Group azimuths (radians) into the modes of their circular density (a Gaussian
+    kernel of ``bandwidth`` radians) that empty sectors separate: the density between two
+    groups falls below :data:`AZIMUTH_GAP_SHARE` of the smaller one's peak, and each
+    group holds :data:`AZIMUTH_MIN_SHARE` of the points. Returns a group per azimuth
+    (all 0: one group).
+
+    The density's local maxima are merged until every valley left is that deep: the
+    shallowest valley's lower peak goes first, and where every valley is deep but a group
+    is too small, the smallest group's peak goes. A peak that goes joins the arcs on
+    either side of it, whose valley is the lower of theirs."""
+    width = 2 * math.pi / bins
+    idx = np.floor((phi % (2 * math.pi)) / width).astype(np.int64) % bins
+    hist = np.bincount(idx, minlength=bins).astype(np.float64)
+    offset = (np.arange(bins) + bins // 2) % bins - bins // 2
+    kernel = np.exp(-0.5 * (offset * width / bandwidth) ** 2)
+    dens = np.real(np.fft.ifft(np.fft.fft(hist) * np.fft.fft(kernel / kernel.sum())))
+    dens[dens < 1e-9 * dens.max()] = 0.0  # the transform's rounding in empty sectors
+    peaks = np.flatnonzero((dens > np.roll(dens, 1)) & (dens >= np.roll(dens, -1)))
+    if len(peaks) < 2:
+        return np.zeros(len(phi), dtype=np.int64)
+    # valley[k]: the lowest bin on the arc from peaks[k] to the next peak round.
+    valley = np.empty(len(peaks), dtype=np.int64)
+    for k, (a, b) in enumerate(zip(peaks, np.roll(peaks, -1))):
+        arc = (a + np.arange((b - a) % bins + 1)) % bins
+        valley[k] = arc[int(np.argmin(dens[arc]))]
+    cum = np.r_[0.0, np.cumsum(hist)]
+    peaks, valley = list(peaks), list(valley)
+
+    def drop(j: int) -> None:
+        # Peak j goes: the arcs before and after it join, at the lower of their valleys.
+        before, after = valley[j - 1], valley[j]
+        valley[j - 1] = before if dens[before] <= dens[after] else after
+        del peaks[j], valley[j]
+
+    while len(peaks) > 1:
+        p = np.array(peaks)
+        v = np.array(valley)
+        nxt = np.roll(p, -1)
+        share = dens[v] / np.maximum(np.minimum(dens[p], dens[nxt]), 1e-300)
+        worst = int(np.argmax(share))
+        if share[worst] >= AZIMUTH_GAP_SHARE:
+            drop(worst if dens[p[worst]] < dens[nxt[worst]] else (worst + 1) % len(p))
+            continue
+        # Group k runs from valley[k - 1] (exclusive) to valley[k] (inclusive), round.
+        lo, hi = np.roll(v, 1), v
+        size = np.where(hi >= lo, cum[hi + 1] - cum[lo + 1], cum[-1] - cum[lo + 1] + cum[hi + 1])
+        small = int(np.argmin(size))
+        if size[small] >= AZIMUTH_MIN_SHARE * len(phi):
+            break
+        drop(small)
+    if len(peaks) < 2:
+        return np.zeros(len(phi), dtype=np.int64)
+    bounds = np.sort(np.array(valley))
+    return np.searchsorted(bounds, idx, side="left") % len(bounds)
+
+
+def _midrib_of(points: np.ndarray, junction: np.ndarray, *, cell: float, bin_w: float) -> np.ndarray:
+    """A leaf's midrib from its points alone, as step 5 reads a branch: the centroids of
+    the level sets (bins ``bin_w`` wide) of the geodesic distance over the voxel graph
+    (side ``cell``) from the node nearest ``junction``; ``junction`` first."""
+    nodes, _ = voxel_centroids(points, cell)
+    if len(nodes) < 2:
+        return np.vstack([junction, nodes])
+    graph = _graph(nodes, 2.0 * cell)
+    src = int(np.argmin(np.linalg.norm(nodes - junction, axis=1)))
+    dist = csgraph.dijkstra(graph, directed=False, indices=src)
+    level = np.floor(dist / bin_w).astype(np.int64)
+    chain = [nodes[level == k].mean(axis=0) for k in np.unique(level)]
+    return np.vstack([junction] + chain)
+
+
+def _split_at_axis(pts: np.ndarray, noise: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray],
+                   groups: tuple[int, ...], base_widths: dict[int, np.ndarray], *, cell: float,
+                   bin_w: float, min_leaf: float, spacing: float
+                   ) -> tuple[np.ndarray, list[np.ndarray], tuple[int, ...], dict[int, np.ndarray], int]:
+    """Split the leaves that are several leaves merged round the axis by the range noise
+    (step 10). Returns the leaf labels, midribs, groups and base widths, and the number of
+    leaves the splits added.
+
+    A turntable rig's beams lie in planes through its axis, so the range noise moves a
+    point along a line through the axis: its azimuth about the axis stays (or turns by
+    180 deg where the noise carries it across). A beam that passes ``d`` from the axis
+    moves a point at radius ``r`` by ``sigma d / r^2`` in azimuth. Round the axis, where
+    a rosette's leaves grow from, the noise spreads every leaf's base into one disc and
+    joins them into one leaf; beyond the disc (:data:`AXIS_DISC_SIGMAS` of the leaf's
+    median noise, plus a voxel), the points whose azimuth the noise moves by under half
+    the spacing there are where they were scanned, and leaves apart in azimuth are apart
+    (:func:`_azimuth_groups`, bandwidth the spacing at the disc's edge); the disc's
+    points go with the group of their nearest point beyond it. A group in whose sector
+    another leaf holds :data:`AZIMUTH_PIECE_SHARE` as many points beyond the disc is a
+    piece of that leaf (the grid cut the leaf in two, and the noise joined one half to
+    its neighbours), and goes to it. The other groups are leaves when each one's midrib
+    (:func:`_midrib_of`, from the merged leaf's junction) is as long as a leaf; the
+    merged leaf's bases are no longer theirs, so its base widths go."""
+    sigma = np.linalg.norm(noise, axis=1)
+    beam = noise / np.maximum(sigma, 1e-300)[:, None]
+    beam_xy = beam[:, :2] / np.maximum(np.hypot(beam[:, 0], beam[:, 1]), 1e-12)[:, None]
+    miss = np.abs(pts[:, 0] * beam_xy[:, 1] - pts[:, 1] * beam_xy[:, 0])  # beam to axis
+    r = np.hypot(pts[:, 0], pts[:, 1])
+    phi = np.arctan2(pts[:, 1], pts[:, 0])
+    leaf_label = leaf_label.copy()
+    midribs = list(midribs)
+    groups = list(groups) if groups else list(range(len(midribs)))
+    base_widths = dict(base_widths)
+    added = 0
+    for li in range(len(midribs)):
+        member = np.flatnonzero(leaf_label == li)
+        disc = AXIS_DISC_SIGMAS * float(np.median(sigma[member])) + cell if len(member) else 0.0
+        bandwidth = spacing / max(disc, 1e-12)
+        exact = (r[member] > disc) & (sigma[member] * miss[member] <= 0.5 * bandwidth * r[member] ** 2)
+        outer = member[exact]
+        if len(outer) < 10:  # too few to part
+            continue
+        g = _azimuth_groups(phi[outer], bandwidth=bandwidth)
+        n_g = int(g.max()) + 1
+        if n_g < 2:
+            continue
+        part = np.empty(len(member), dtype=np.int64)
+        part[exact] = g
+        if not exact.all():
+            part[~exact] = g[cKDTree(pts[outer]).query(pts[member[~exact]], workers=-1)[1]]
+        # A part in a sector where another leaf holds as many points beyond the disc is a
+        # piece of that leaf (the grid cut it off into this one): it goes to that leaf.
+        others = np.flatnonzero((leaf_label >= 0) & (leaf_label != li) & (r > disc))
+        owner = np.full(n_g, -1, dtype=np.int64)
+        for k in range(n_g):
+            phi_k = phi[outer[g == k]]
+            mid = math.atan2(float(np.sin(phi_k).sum()), float(np.cos(phi_k).sum()))
+            dev = (phi_k - mid + math.pi) % (2 * math.pi) - math.pi
+            off = (phi[others] - mid + math.pi) % (2 * math.pi) - math.pi
+            inside = others[(off >= dev.min()) & (off <= dev.max())]
+            if len(inside) >= AZIMUTH_PIECE_SHARE * len(phi_k):
+                owner[k] = int(np.bincount(leaf_label[inside]).argmax())
+        new = np.flatnonzero(owner < 0)
+        if not len(new):
+            continue
+        ribs = [_midrib_of(pts[member[part == k]], midribs[li][0], cell=cell, bin_w=bin_w) for k in new]
+        if min(float(np.linalg.norm(np.diff(m, axis=0), axis=1).sum()) for m in ribs) < min_leaf:
+            continue
+        logger.debug("segmentation: leaf %d is %d leaves merged round the axis and %d pieces of others, "
+                     "split by azimuth", li, len(new), n_g - len(new))
+        for k in np.flatnonzero(owner >= 0):
+            leaf_label[member[part == k]] = owner[k]
+        midribs[li] = ribs[0]
+        base_widths.pop(li, None)
+        for k, rib in zip(new[1:], ribs[1:]):
+            leaf_label[member[part == k]] = len(midribs)
+            midribs.append(rib)
+            groups.append(max(groups) + 1)
+        added += len(new) - 1
+    return leaf_label, midribs, tuple(groups), base_widths, added
+
+
 def _remap_parents(old_label: np.ndarray, new_label: np.ndarray, old_parent: list[int],
                    n_new: int) -> tuple[int, ...]:
     """Each new leaf's parent leaf (-1: it hangs from a stem or from nothing), from the
@@ -1885,6 +2068,11 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     parents = _remap_parents(chain_label, leaf_label, chain_parent, len(midribs))
     links = np.array([(i, p) for i, p in enumerate(parents) if p >= 0], dtype=np.int64).reshape(-1, 2)
     groups = tuple(int(g) for g in _components(len(midribs), links))
+    n_axis_split = 0
+    if noise is not None and midribs:
+        leaf_label, midribs, groups, base_widths, n_axis_split = _split_at_axis(
+            pts, noise, leaf_label, midribs, groups, base_widths, cell=v, bin_w=bin_w, min_leaf=min_leaf,
+            spacing=scale.spacing_m)
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
@@ -1892,6 +2080,6 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
                         stems=stems, stem_tops_m=np.array(stem_tops, dtype=np.float64).reshape(-1, 3),
                         leaf_midribs=tuple(midribs), scale=scale, min_leaf_length_m=float(min_leaf),
                         link_m=float(s.link_factor * v), sparse_branches=n_sparse,
-                        leaf_group=groups, stem_noise_branches=n_stem_noise,
+                        leaf_group=groups, stem_noise_branches=n_stem_noise, axis_split_leaves=n_axis_split,
                         leaf_base_widths_m=tuple(base_widths.get(i, np.zeros(0)) for i in range(len(midribs))),
                         stem_walk_tops_z_m=tuple(walk_top_z))

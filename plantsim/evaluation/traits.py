@@ -1227,6 +1227,48 @@ class _LeafMeasures(typing.NamedTuple):
     noise_width_m: float
     width_resolved: bool | None
     across_beams_share: float
+    junction_widths_ramped: int = 0
+
+
+# Cross-sections this many standard deviations of the range noise or less from a leaf's
+# junction hold the stem's and the other leaves' points the noise spreads there
+# (_ramp_junction_widths).
+_JUNCTION_NOISE_SIGMAS = 3.0
+
+
+def _ramp_junction_widths(widths: np.ndarray, midrib: np.ndarray, seg_len: np.ndarray, unread: np.ndarray,
+                          read_across: np.ndarray, noise_m: np.ndarray | None) -> int:
+    """Ramp the widths of a leaf's unread cross-sections at its junction, in place;
+    returns how many.
+
+    Within :data:`_JUNCTION_NOISE_SIGMAS` of the range noise of the junction, the
+    noise spreads the stem's points and the other leaves' bases (a rosette's, all
+    from the axis) into the leaf's cross-sections: their points' spread is the noise's,
+    and their beams, crossing several organs, read no one plane
+    (:func:`across_beam_width`). The leading run of such ``unread`` nodes (from node
+    1), those that close to the junction, take the width of a leaf that narrows to its
+    junction, as the area already takes it between the junction and the first node:
+    linear along the midrib from 0 at the junction to the first node past them. Only
+    when a node past them was read across the beams: a leaf none of whose widths the
+    beams read keeps its points' widths, and says so (``width_resolved``). The
+    realistic 3-leaf rosette, its leaves split round its axis
+    (segmentation._split_at_axis), read +42 % in area with their bases' noise, +25 %
+    with them ramped; no other plant of tests/test_traits_procedural.py changes."""
+    if noise_m is None or len(widths) < 3:
+        return 0
+    sigma = float(np.median(np.linalg.norm(noise_m, axis=1)))
+    run = 1
+    while run < len(widths) and unread[run]:
+        run += 1
+    near = np.linalg.norm(midrib[1:run] - midrib[0], axis=1) <= _JUNCTION_NOISE_SIGMAS * sigma
+    k = 1 + int(np.argmin(near)) if not near.all() else run  # the first node past them
+    if k == 1 or k >= len(widths) or not read_across[k:].any():
+        return 0
+    along = np.r_[0.0, np.cumsum(seg_len)]
+    if not along[k] > 0:
+        return 0
+    widths[1:k] = widths[k] * along[1:k] / along[k]
+    return k - 1
 
 
 def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None = None,
@@ -1319,6 +1361,8 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
                     widths[j], read_across[j] = w, True
                 continue
             widths[j], read_across[j], reads_noise[j] = w, True, False
+    ramped = _ramp_junction_widths(widths, midrib, seg_len, reads_noise & ~read_across, read_across,
+                                   noise_m)
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     # The leaf's reach past its last node; none when no point is nearest that node (a
     # midrib can end past its points, as two merged halves' tips averaged do).
@@ -1366,7 +1410,7 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
     noise_width = leaf_noise_width(noise_m, node, tangent, normal, outer_nodes)
     resolved = None if not len(checked) else bool(np.mean(reads_noise[checked]) < 0.5)
     return _LeafMeasures(length, width, area, incl, noise_width, resolved,
-                         float(np.mean(read_across[outer_nodes])))
+                         float(np.mean(read_across[outer_nodes])), ramped)
 
 
 # A midrib's leading nodes narrower than this share of the leaf's width are its stalk (a
@@ -1691,6 +1735,18 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                      f"{segmentation.STEM_NOISE_GATE_SIGMAS:g} sigma of the range noise of where the beam enters "
                      f"it, and {'they end' if n > 1 else 'it ends'} within that reach of the stem: the stem's own "
                      "hits, spread along their beams by the noise; given to the stem")
+    if seg.axis_split_leaves:
+        n = seg.axis_split_leaves
+        notes.append(f"{n} lea{'ves' if n > 1 else 'f'} found by splitting leaves the range noise merged round "
+                     "the turntable's axis: the noise moves each point along its beam, in a plane through the "
+                     "axis, and leaves its azimuth; beyond the noise's disc round the axis their points fall "
+                     "into sectors empty sectors part, each as long as a leaf (segmentation._split_at_axis)")
+    ramped = sum(1 for lm in measures if lm.junction_widths_ramped)
+    if ramped:
+        notes.append(f"{ramped} lea{'ves' if ramped > 1 else 'f'}' widths within "
+                     f"{_JUNCTION_NOISE_SIGMAS:g} sigma of the range noise of their junction not read (the "
+                     "stem's and the other leaves' points the noise spreads there) and taken as narrowing to "
+                     "the junction, from the first width past them read (_ramp_junction_widths)")
     if seg.sparse_branches:
         notes.append(f"{seg.sparse_branches} branch{'es' if seg.sparse_branches > 1 else ''} long enough to be "
                      "a leaf not counted as leaves: each holds fewer points than there are point spacings "
