@@ -67,8 +67,10 @@ def _rosette(seed, *, n_leaves=3, sigma_m=0.015, inclination_deg=10.0, spacing_m
 def test_leaves_the_noise_merges_round_the_axis_are_split_into_the_true_leaves(seed):
     # 15 mm of range noise on leaves 10 deg up from a stem 4 mm wide: their bases are one
     # disc 6 cm across, and without the split these read 2 leaves for 3 (checked). Split
-    # by azimuth, every shifted grid reads 3, the split adding leaves on 5 to 7 of the 9;
-    # each found leaf is nearly all one true leaf's, each true leaf found once.
+    # by azimuth, every shifted grid reads 3, the split adding leaves on 5 to 7 of the 9
+    # (pieces of leaves the grid cut off going back to them on others); beyond the noise
+    # disc each found leaf is nearly all one true leaf's, each true leaf found once; the
+    # area +7..+9 % over seeds 0-5.
     pts, noise, owner, area = _rosette(seed)
     t = traits.extract_traits(pts, range_noise_m=noise)
     assert t.leaf_count == 3 and set(t.leaf_counts_over_grids) == {3}
@@ -80,11 +82,14 @@ def test_leaves_the_noise_merges_round_the_axis_are_split_into_the_true_leaves(s
                    if "found by splitting leaves the range noise merged round the turntable's axis" in n]
     assert len(split_notes) == (seg.axis_split_leaves > 0)
     truth = owner[cKDTree(pts).query(seg.points)[1]]
+    # Within the noise's reach of the axis the leaves' bases and the stem are one disc,
+    # which no rule can share out: leaf by leaf, the points beyond 3 sigma are judged.
+    beyond = np.hypot(seg.points[:, 0], seg.points[:, 1]) > 0.045
     found = []
     for i in range(len(seg.leaf_midribs)):
-        mine = truth[seg.leaf_label == i]
+        mine = truth[(seg.leaf_label == i) & beyond]
         counts = np.bincount(mine[mine >= 0], minlength=3)
-        assert counts.max() >= 0.8 * counts.sum()  # of its points on a leaf (the stem's are noise)
+        assert counts.max() >= 0.9 * counts.sum(), counts
         found.append(int(counts.argmax()))
     assert sorted(found) == [0, 1, 2]
 

@@ -1740,7 +1740,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         notes.append(f"{n} lea{'ves' if n > 1 else 'f'} found by splitting leaves the range noise merged round "
                      "the turntable's axis: the noise moves each point along its beam, in a plane through the "
                      "axis, and leaves its azimuth; beyond the noise's disc round the axis their points fall "
-                     "into sectors empty sectors part, each as long as a leaf (segmentation._split_at_axis)")
+                     "into sectors parted by empty ones, each as long as a leaf (segmentation._split_at_axis)")
     ramped = sum(1 for lm in measures if lm.junction_widths_ramped)
     if ramped:
         notes.append(f"{ramped} lea{'ves' if ramped > 1 else 'f'}' widths within "
