@@ -438,7 +438,7 @@ def test_a_noisy_rosettes_leaves_merged_round_its_axis_are_its_true_leaves():
     # Under 10 mm of range noise the 3-leaf rosette's leaf bases are one disc round the
     # axis, and its leaves read as one. Given the beams, they are split by azimuth
     # (segmentation._split_at_axis): 3 on every shifted grid, each matched to its true
-    # leaf (IoU 0.71 mean), the area +25 % (+15..+44 % over the grids).
+    # leaf (IoU 0.71 mean), the area +25 % (+15..+43 % over the grids).
     est, truth = _scan("rosette3", *REALISTIC)
     assert set(est.leaf_counts_over_grids) == {3}
     assert any("found by splitting leaves" in n for n in est.notes)
