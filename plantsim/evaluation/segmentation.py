@@ -1677,8 +1677,9 @@ def _split_at_axis(pts: np.ndarray, noise: np.ndarray, leaf_label: np.ndarray, m
             continue
         part = np.empty(len(member), dtype=np.int64)
         part[exact] = g
-        # A part in a sector where another leaf holds as many points beyond the disc is a
-        # piece of that leaf (the grid cut it off into this one): it goes to that leaf.
+        # A group in a sector where another leaf holds half as many points beyond the disc
+        # (AZIMUTH_PIECE_SHARE) is a piece of that leaf, which the grid cut off into this
+        # one: it goes to that leaf.
         others = np.flatnonzero((leaf_label >= 0) & (leaf_label != li) & (r > disc))
         owner = np.full(n_g, -1, dtype=np.int64)
         for k in range(n_g):
