@@ -141,9 +141,9 @@ def _ramp(widths_mm, unread, read_across, *, step_mm=10.0, sigma_mm=10.0):
     widths = np.array(widths_mm, dtype=float) * 1e-3
     k = len(widths)
     midrib = np.column_stack([np.arange(k) * step_mm * 1e-3, np.zeros(k), np.zeros(k)])
-    seg_len = np.full(k - 1, step_mm * 1e-3)
+    along = np.arange(k) * step_mm * 1e-3
     noise = np.tile([0.0, 0.0, sigma_mm * 1e-3], (50, 1))
-    n = traits._ramp_junction_widths(widths, midrib, seg_len, np.array(unread, bool), np.array(read_across, bool),
+    n = traits._ramp_junction_widths(widths, midrib, along, np.array(unread, bool), np.array(read_across, bool),
                                      noise)
     return n, np.round(widths * 1e3, 6).tolist()
 
@@ -161,5 +161,5 @@ def test_unread_widths_at_the_junction_narrow_to_it():
     assert _ramp([0, 40, 40, 30], [0, 0, 1, 0], [0, 1, 0, 1])[0] == 0
     assert _ramp([0, 40, 40, 30], [0, 1, 1, 0], [0, 0, 0, 0]) == (0, [0, 40, 40, 30])
     widths = np.array([0.0, 0.04, 0.03])
-    assert traits._ramp_junction_widths(widths, np.zeros((3, 3)), np.ones(2), np.ones(3, bool),
+    assert traits._ramp_junction_widths(widths, np.zeros((3, 3)), np.arange(3.0), np.ones(3, bool),
                                         np.ones(3, bool), None) == 0

@@ -1236,10 +1236,10 @@ class _LeafMeasures(typing.NamedTuple):
 _JUNCTION_NOISE_SIGMAS = 3.0
 
 
-def _ramp_junction_widths(widths: np.ndarray, midrib: np.ndarray, seg_len: np.ndarray, unread: np.ndarray,
+def _ramp_junction_widths(widths: np.ndarray, midrib: np.ndarray, along: np.ndarray, unread: np.ndarray,
                           read_across: np.ndarray, noise_m: np.ndarray | None) -> int:
     """Ramp the widths of a leaf's unread cross-sections at its junction, in place;
-    returns how many.
+    returns how many. ``along``: each midrib node's distance along it from the junction.
 
     Within :data:`_JUNCTION_NOISE_SIGMAS` of the range noise of the junction, the
     noise spreads the stem's points and the other leaves' bases (a rosette's, all
@@ -1264,7 +1264,6 @@ def _ramp_junction_widths(widths: np.ndarray, midrib: np.ndarray, seg_len: np.nd
     k = 1 + int(np.argmin(near)) if not near.all() else run  # the first node past them
     if k == 1 or k >= len(widths) or not read_across[k:].any():
         return 0
-    along = np.r_[0.0, np.cumsum(seg_len)]
     if not along[k] > 0:
         return 0
     widths[1:k] = widths[k] * along[1:k] / along[k]
@@ -1361,16 +1360,14 @@ def _leaf_measures(points: np.ndarray, midrib: np.ndarray, *, link: float | None
                     widths[j], read_across[j] = w, True
                 continue
             widths[j], read_across[j], reads_noise[j] = w, True, False
-    ramped = _ramp_junction_widths(widths, midrib, seg_len, reads_noise & ~read_across, read_across,
-                                   noise_m)
+    along = np.r_[0.0, np.cumsum(seg_len)]
+    ramped = _ramp_junction_widths(widths, midrib, along, reads_noise & ~read_across, read_across, noise_m)
     tip_dir = seg[-1] / max(seg_len[-1], 1e-12)
     # The leaf's reach past its last node; none when no point is nearest that node (a
     # midrib can end past its points, as two merged halves' tips averaged do).
     at_tip = points[node == len(midrib) - 1]
     beyond = float(max(0.0, ((at_tip - midrib[-1]) @ tip_dir).max())) if len(at_tip) else 0.0
     widths[0] = 0.0  # the junction node is the stem's
-
-    along = np.r_[0.0, np.cumsum(seg_len)]
 
     def outer_of(first: int, base_along: float) -> np.ndarray:
         # The widest cross-sections are where a neighbouring organ touches: the 90th
