@@ -1341,6 +1341,13 @@ class _RangeImage(typing.NamedTuple):
     slice_m: float  # the slices' thickness, metres
 
 
+def _beam_axis_distance(points_xy: np.ndarray, beam_xy: np.ndarray) -> np.ndarray:
+    """How far from the turntable's axis (x = y = 0) each point's beam passes,
+    horizontally: ``points_xy`` (n, 2) metres, ``beam_xy`` (n, 2) the beams' horizontal
+    unit directions (either sense)."""
+    return np.abs(points_xy[:, 0] * beam_xy[:, 1] - points_xy[:, 1] * beam_xy[:, 0])
+
+
 def _axis_range_image(pts: np.ndarray, noise: np.ndarray, *, base_z: float, slice_m: float, sector_deg: float,
                       max_miss_m: float) -> _RangeImage | None:
     """The points of a scan whose beams cross the axis in cells of turn angle and height,
@@ -1352,7 +1359,7 @@ def _axis_range_image(pts: np.ndarray, noise: np.ndarray, *, base_z: float, slic
     if len(use) < 100:
         return None
     towards = -noise[use, :2] / horizontal[use, None]  # the sensor's side, horizontal unit vector
-    miss = np.abs(pts[use, 0] * towards[:, 1] - pts[use, 1] * towards[:, 0])
+    miss = _beam_axis_distance(pts[use, :2], towards)
     if float(np.median(miss)) > max_miss_m:
         return None
     s = np.einsum("ij,ij->i", pts[use, :2], towards)
@@ -1655,7 +1662,7 @@ def _split_at_axis(pts: np.ndarray, noise: np.ndarray, leaf_label: np.ndarray, m
     sigma = np.linalg.norm(noise, axis=1)
     beam = noise / np.maximum(sigma, 1e-300)[:, None]
     beam_xy = beam[:, :2] / np.maximum(np.hypot(beam[:, 0], beam[:, 1]), 1e-12)[:, None]
-    miss = np.abs(pts[:, 0] * beam_xy[:, 1] - pts[:, 1] * beam_xy[:, 0])  # beam to axis
+    miss = _beam_axis_distance(pts[:, :2], beam_xy)
     r = np.hypot(pts[:, 0], pts[:, 1])
     phi = np.arctan2(pts[:, 1], pts[:, 0])
     leaf_label = leaf_label.copy()

@@ -1262,9 +1262,7 @@ def _ramp_junction_widths(widths: np.ndarray, midrib: np.ndarray, along: np.ndar
         run += 1
     near = np.linalg.norm(midrib[1:run] - midrib[0], axis=1) <= _JUNCTION_NOISE_SIGMAS * sigma
     k = 1 + int(np.argmin(near)) if not near.all() else run  # the first node past them
-    if k == 1 or k >= len(widths) or not read_across[k:].any():
-        return 0
-    if not along[k] > 0:
+    if k == 1 or k >= len(widths) or not read_across[k:].any() or not along[k] > 0:
         return 0
     widths[1:k] = widths[k] * along[1:k] / along[k]
     return k - 1
