@@ -129,3 +129,35 @@ def test_a_leaf_rising_in_a_noisy_stems_column_is_read_from_its_insertion(seed):
         assert leaf.length_m == pytest.approx(0.242, rel=0.15)
         assert leaf.width_m == pytest.approx(0.040, rel=0.25)
         assert leaf.area_m2 == pytest.approx(0.242 * 0.040, rel=0.30)
+
+
+def _refusal(t):
+    """The trait note saying the beams could not end the stem, and the top it quotes, mm."""
+    notes = [n for n in t.notes if "cannot end it" in n]
+    if not notes:
+        return None, math.nan
+    (note,) = notes
+    return note, float(re.search(r"its top, (\d+) mm up", note).group(1))
+
+
+def test_the_traits_say_why_the_beams_do_not_end_a_noisy_stem():
+    # Where the beams cannot end a noisy stem, its top is where the walk up its column
+    # stopped, and a leaf rising in the column carries the walk on: the traits say so,
+    # and why, instead of quoting the walk's top as if the beams had read it.
+    rng = np.random.default_rng(4)
+    pts, noise = _first_hits(rng, plates=[STEEP, LOW])
+    assert _refusal(traits.extract_traits(pts, range_noise_m=noise))[0] is None  # the beams end it
+    note, top_mm = _refusal(traits.extract_traits(pts))
+    assert "no range noise is given" in note
+    # A 4 mm stem under 12 mm of noise: a fifth of its cells are open at its base.
+    pts_thin, noise_thin = _first_hits(rng, stem_r=0.002, plates=[STEEP, LOW])
+    t = traits.extract_traits(pts_thin, range_noise_m=noise_thin)
+    note, top_mm = _refusal(t)
+    open_pct = float(re.search(r"the beams pass the axis in (\d+) % of the cells", note).group(1))
+    assert 15 <= open_pct <= 35
+    assert top_mm == pytest.approx(1e3 * t.stem_height_m, abs=1.0)
+    # A stem 40 mm tall (a rosette's crown) spans too few slices of two voxels to read
+    # its own share of open cells above its lowest.
+    pts_short, noise_short = _first_hits(rng, stem_h=0.04)
+    note, _ = _refusal(traits.extract_traits(pts_short, range_noise_m=noise_short))
+    assert re.search(r"the plant spans [1-6] slices of \d+ mm, too few", note)

@@ -781,6 +781,11 @@ class Segmentation:
         axis_split_leaves: leaves found by splitting leaves merged round the axis by
             the range noise, by azimuth (:func:`_split_at_axis`; step 10): 0 without
             the range noise.
+        stem_beam_top_refusals: per stem, why the beams through the turntable's axis
+            do not end it (:func:`beam_stem_top`), one clause; '' where they do, or
+            where its rings are resolved and the walk follows them. Where they do not,
+            a noisy stem's top is where the walk up its column stopped, and a leaf
+            rising in the column carries the walk on. Empty: none given.
     """
 
     points: np.ndarray
@@ -799,6 +804,7 @@ class Segmentation:
     leaf_base_widths_m: tuple[np.ndarray, ...] = ()
     stem_walk_tops_z_m: tuple[float, ...] = ()
     axis_split_leaves: int = 0
+    stem_beam_top_refusals: tuple[str, ...] = ()
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
@@ -1310,20 +1316,31 @@ def beam_stem_top(points_turntable: Any, range_noise_m: Any, *, base_z: float, s
 
 def _stem_top_in(image: "_RangeImage | None") -> float:
     """:func:`beam_stem_top` on a range image (None: NaN)."""
-    if image is None or image.n_levels < 7:
-        return math.nan
+    return _stem_top_and_refusal(image)[0]
+
+
+def _stem_top_and_refusal(image: "_RangeImage | None") -> tuple[float, str]:
+    """:func:`beam_stem_top` on a range image, and why it reads no top: a clause a trait
+    note can quote ('' when it reads one)."""
+    if image is None:
+        return math.nan, "the beams do not pass through the turntable's axis, or too few points were seen"
+    if image.n_levels < 7:
+        return math.nan, (f"the plant spans {image.n_levels} slices of {1e3 * image.slice_m:.0f} mm, too few "
+                          "to read the stem's own share of open cells in the 5 slices above its lowest")
     base_z, slice_m = image.base_z, image.slice_m
     closed = np.zeros(image.n_levels * image.n_sectors, dtype=bool)
     closed[image.cells] = image.median_s >= 0.0
     open_share = 1.0 - closed.reshape(image.n_levels, image.n_sectors).mean(axis=1)
     own = float(np.median(open_share[1:6]))
     if own > BEAM_TOP_MAX_OPEN:
-        return math.nan
+        return math.nan, (f"the beams pass the axis in {100 * own:.0f} % of the cells of the 5 slices above its "
+                          f"lowest (more than {100 * BEAM_TOP_MAX_OPEN:.0f} %: a stem thin for its noise, or "
+                          "shorter than those slices, cannot be told there from no stem)")
     above = open_share > 0.5 * (1.0 + own)
     for k in range(1, image.n_levels - 1):
         if above[k] and above[k + 1]:
-            return base_z + k * slice_m
-    return base_z + image.n_levels * slice_m
+            return base_z + k * slice_m, ""
+    return base_z + image.n_levels * slice_m, ""
 
 
 class _RangeImage(typing.NamedTuple):
@@ -1856,9 +1873,25 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     if any(on_axis):
         image = _axis_range_image(pts, noise, base_z=s.base_z, slice_m=2.0 * scale.voxel_m, sector_deg=3.0,
                                   max_miss_m=0.25 * scale.spacing_m)
-    top = _stem_top_in(image)
+    top, why = _stem_top_and_refusal(image)
     beam_tops = [top if axis else math.nan for axis in on_axis]
-    return tuple(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image) for g in grids)
+    refusals = tuple(_beam_top_refusal(st, noise is not None, axis, why) for st, axis in zip(stems, on_axis))
+    return tuple(dataclasses.replace(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image),
+                                     stem_beam_top_refusals=refusals) for g in grids)
+
+
+def _beam_top_refusal(stem: StemBase, noise_given: bool, on_axis: bool, why: str) -> str:
+    """Why the beams through the axis do not end a stem whose noisy column hides its
+    rings (:func:`beam_stem_top`; ``why`` the range image's own reason); '' where they
+    do or its rings are resolved (the walk follows them)."""
+    if stem.diameter_resolved:
+        return ""
+    if not noise_given:
+        return "no range noise is given (or it is zero), so the beams' directions are not known"
+    if not on_axis:
+        return (f"it stands {1e3 * math.hypot(*stem.center_xy_m):.0f} mm off the turntable's axis, more than "
+                "half its column's width, where the beams through the axis need not meet it")
+    return why
 
 
 def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems: tuple[StemBase, ...],

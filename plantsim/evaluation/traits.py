@@ -1787,6 +1787,17 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     # What every grid reads: where the walk up a stem goes on or stops depends on the
     # grid (the ideal 9-leaf maize's stem, 0.42 m, reads 0.25-0.51 m over the 9 grids).
     grid_stem_heights = tuple(stem_height if g is seg else stem_height_of(g) for g in grids)
+    for si, why in enumerate(seg.stem_beam_top_refusals):
+        sp = seg.points[seg.stem_label == si]
+        if not why or not len(sp):
+            continue
+        st = seg.stems[si]
+        h_mm = 1e3 * robust_height(sp, base_z=s.base_z, scale=seg.scale, min_points=top_min_points)
+        notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: its "
+                     f"top, {h_mm:.0f} mm up, is where the skeleton's walk up its column stopped, "
+                     "and a leaf rising from the stem within that column carries the walk on up it (it "
+                     f"then reads high); the beams through the turntable's axis cannot end it: {why} "
+                     "(segmentation.beam_stem_top)")
     if not leaves:
         start = "the stem" if stems else "the cloud's lowest points"
         notes.append(f"no leaf: no skeleton branch reaches {1e3 * seg.min_leaf_length_m:.0f} mm (the "
