@@ -163,3 +163,26 @@ def test_unread_widths_at_the_junction_narrow_to_it():
     widths = np.array([0.0, 0.04, 0.03])
     assert traits._ramp_junction_widths(widths, np.zeros((3, 3)), np.arange(3.0), np.ones(3, bool),
                                         np.ones(3, bool), None) == 0
+
+
+def test_a_split_leafs_midrib_is_read_on_its_grids_voxels_and_bins():
+    # Every grid reads the split leaves' midribs on its own voxels and level-set bins, as
+    # the skeleton's; read on the origin's on every grid, they varied less than it does.
+    # A straight strip 120 mm along x from the junction, 20 mm wide, 1 mm sampling; 4 mm
+    # voxels, 16 mm bins. Half a bin on, the inner level sets' centroids lie half a bin
+    # back (the bins start 8 mm earlier along the strip); the voxels moved by half a
+    # voxel move them by less than a voxel.
+    x, y = np.meshgrid(np.arange(0.0, 0.1201, 0.001), np.arange(-0.01, 0.0101, 0.001))
+    strip = np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
+    junction = np.zeros(3)
+    cell, bin_w = 0.004, 0.016
+    on_origin = segmentation._midrib_of(strip, junction, cell=cell, bin_w=bin_w)
+    bins_on = segmentation._midrib_of(strip, junction, cell=cell, bin_w=bin_w, grid_offset=(0.0, 0.0, 0.0, 0.5))
+    voxels_on = segmentation._midrib_of(strip, junction, cell=cell, bin_w=bin_w, grid_offset=(0.5, 0.5, 0.5, 0.0))
+    inner = slice(3, 7)  # away from the junction's and the tip's clipped bins
+    for rib in (on_origin, bins_on, voxels_on):
+        assert np.all(rib[0] == junction)
+        assert np.allclose(rib[inner, 1:], 0.0, atol=0.5 * cell)  # along the strip's middle
+    assert np.allclose(on_origin[inner, 0] - bins_on[inner, 0], 0.5 * bin_w, atol=0.1 * cell)
+    moved = np.abs(voxels_on[inner, 0] - on_origin[inner, 0])
+    assert np.all(moved < cell) and np.any(moved > 0.05 * cell)

@@ -1634,24 +1634,27 @@ def _azimuth_groups(phi: np.ndarray, *, bandwidth: float, bins: int = 720) -> np
     return np.searchsorted(bounds, idx, side="left") % len(bounds)
 
 
-def _midrib_of(points: np.ndarray, junction: np.ndarray, *, cell: float, bin_w: float) -> np.ndarray:
+def _midrib_of(points: np.ndarray, junction: np.ndarray, *, cell: float, bin_w: float,
+               grid_offset: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)) -> np.ndarray:
     """A leaf's midrib from its points alone, as step 5 reads a branch: the centroids of
     the level sets (bins ``bin_w`` wide) of the geodesic distance over the voxel graph
-    (side ``cell``) from the node nearest ``junction``; ``junction`` first."""
-    nodes, _ = voxel_centroids(points, cell)
+    (side ``cell``) from the node nearest ``junction``; ``junction`` first. The voxels and
+    the bins start where the grid's do (:attr:`SegmentationSettings.grid_offset`)."""
+    nodes, _ = voxel_centroids(points, cell, np.asarray(grid_offset[:3], dtype=np.float64))
     if len(nodes) < 2:
         return np.vstack([junction, nodes])
     graph = _graph(nodes, 2.0 * cell)
     src = int(np.argmin(np.linalg.norm(nodes - junction, axis=1)))
     dist = csgraph.dijkstra(graph, directed=False, indices=src)
-    level = np.floor(dist / bin_w).astype(np.int64)
+    level = np.floor(dist / bin_w + grid_offset[3]).astype(np.int64)
     chain = [nodes[level == k].mean(axis=0) for k in np.unique(level)]
     return np.vstack([junction] + chain)
 
 
 def _split_at_axis(pts: np.ndarray, noise: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray],
                    groups: tuple[int, ...], base_widths: dict[int, np.ndarray], *, cell: float,
-                   bin_w: float, min_leaf: float, spacing: float
+                   bin_w: float, min_leaf: float, spacing: float,
+                   grid_offset: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
                    ) -> tuple[np.ndarray, list[np.ndarray], tuple[int, ...], dict[int, np.ndarray], int]:
     """Split the leaves that are several leaves merged round the axis by the range noise
     (step 10). Returns the leaf labels, midribs, groups and base widths, and the number of
@@ -1723,7 +1726,8 @@ def _split_at_axis(pts: np.ndarray, noise: np.ndarray, leaf_label: np.ndarray, m
         kept = np.isin(g, new) if len(new) == 1 else np.ones(len(g), dtype=bool)
         if not exact.all():
             part[~exact] = g[kept][cKDTree(pts[outer[kept]]).query(pts[member[~exact]], workers=-1)[1]]
-        ribs = [_midrib_of(pts[member[part == k]], midribs[li][0], cell=cell, bin_w=bin_w) for k in new]
+        ribs = [_midrib_of(pts[member[part == k]], midribs[li][0], cell=cell, bin_w=bin_w,
+                           grid_offset=grid_offset) for k in new]
         if min(float(np.linalg.norm(np.diff(m, axis=0), axis=1).sum()) for m in ribs) < min_leaf:
             continue
         logger.debug("segmentation: leaf %d is %d leaves merged round the axis and %d pieces of others, "
@@ -2121,7 +2125,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     if noise is not None and midribs:
         leaf_label, midribs, groups, base_widths, n_axis_split = _split_at_axis(
             pts, noise, leaf_label, midribs, groups, base_widths, cell=v, bin_w=bin_w, min_leaf=min_leaf,
-            spacing=scale.spacing_m)
+            spacing=scale.spacing_m, grid_offset=s.grid_offset)
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
