@@ -68,6 +68,7 @@ def test_the_beams_read_a_noisy_stems_top_where_a_steep_leaf_rises_above_it(seed
     t = traits.extract_traits(pts, range_noise_m=noise)
     assert not t.stems[0].diameter_resolved
     assert t.stem_height_m == pytest.approx(0.30, rel=0.03)
+    assert t.stems[0].height_m == t.stem_height_m and t.stems[0].height_from == "beams"
     assert t.leaf_count == 2
     # The traits say where the top came from and where the walk would have put it.
     (note,) = [n for n in t.notes if "stop meeting it" in n]
@@ -156,6 +157,7 @@ def test_the_traits_say_why_the_beams_do_not_end_a_noisy_stem():
     open_pct = float(re.search(r"the beams pass the axis in (\d+) % of the cells", note).group(1))
     assert 15 <= open_pct <= 35
     assert top_mm == pytest.approx(1e3 * t.stem_height_m, abs=1.0)
+    assert t.stems[0].height_from == "walk"
     # A stem 40 mm tall (a rosette's crown) spans too few slices of two voxels to read
     # its own share of open cells above its lowest.
     pts_short, noise_short = _first_hits(rng, stem_h=0.04)

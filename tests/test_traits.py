@@ -98,6 +98,37 @@ def test_two_and_three_stems_give_their_centre_distances():
     assert got == pytest.approx(sorted(d.values()), abs=2e-5)
 
 
+def test_each_stem_has_its_own_height(tmp_path, capsys):
+    # A main culm and a tiller differ in height; the plant's stem height is the
+    # tallest's, and each stem says its own (read where the walk up it stopped: no range
+    # noise is given). The surface of a procedural wheat, sampled densely (no occlusion).
+    from plantsim.cli.app import build_parser
+    from plantsim.plant.procedural import make_wheat
+
+    plant = make_wheat(seed=1, n_tillers=2, leaves_per_tiller=3)
+    pts, _ = metrics.sample_surface(plant.vertices_m, plant.faces, 150_000, rng=0)
+    t = traits.extract_traits(pts)
+    truth = traits.traits_from_truth(plant.traits)
+    assert len(t.stems) == len(truth.stems) == 2
+    assert [st.height_m for st in truth.stems] == [st["height_m"] for st in plant.traits["stems"]]
+    assert truth.stems[0].height_m != truth.stems[1].height_m
+    for st in t.stems:
+        (true,) = [tr for tr in truth.stems if np.hypot(*np.subtract(tr.center_xy_m, st.center_xy_m)) < 0.005]
+        assert st.height_m == pytest.approx(true.height_m, rel=0.05) and st.height_from == "walk"
+    assert t.stem_height_m == max(st.height_m for st in t.stems)
+    # The CLI prints every stem of a plant with several.
+    path = tmp_path / "tillers.ply"
+    header = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"
+              "property float y\nproperty float z\nend_header\n" % len(pts))
+    path.write_bytes(header.encode("ascii") + pts.astype("<f4").tobytes())
+    out = tmp_path / "t.json"
+    args = build_parser().parse_args(["traits", str(path), "-o", str(out)])
+    assert args.func(args) == 0
+    (line,) = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("stems: ")]
+    for st in json.loads(out.read_text())["stems"]:
+        assert f"{1e3 * st['height_m']:.0f} mm tall" in line
+
+
 # --------------------------------------------------------------------------
 # leaves
 # --------------------------------------------------------------------------

@@ -166,6 +166,14 @@ def cmd_traits(args: argparse.Namespace) -> int:
                  else "")
               + f", area {f(out['leaf_area_m2'], 1e4, ' cm^2')}")
         print(f"points: {measured}")
+        if len(out.get("stems") or ()) > 1:
+            # A tiller's height is its own; the line above gives the tallest stem's.
+            def mm(v, digits=0):
+                return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{round(1e3 * v, digits) + 0.0:.{digits}f}"
+            print("stems: " + "; ".join(
+                f"at ({mm(st['center_xy_m'][0])}, {mm(st['center_xy_m'][1])}) mm, "
+                f"{'<= ' if not st.get('diameter_resolved', True) else ''}{mm(st['diameter_m'], 1)} mm wide, "
+                f"{mm(st.get('height_m'))} mm tall" for st in out["stems"]))
         counts = out.get("leaf_counts_over_grids") or []
         areas = [a for a in out.get("leaf_areas_over_grids_m2") or [] if a is not None]
         if len(counts) > 1:

@@ -183,6 +183,15 @@ class Stem:
         n_points: points in the slice component (0 for truth).
         diameter_resolved: False when noise hides the stem's diameter in its base
             slices (no ring fits): ``diameter_m`` is then an upper bound.
+        height_m: its top above the plant's base: its own points' :func:`robust_height`
+            (cloud; :attr:`PlantTraits.stem_height_m` is the tallest stem's), or the
+            truth's ``height_m`` (NaN: not measured, or not in the truth). A tiller's
+            height is its own.
+        height_from: how the cloud's stem top was read: ``"beams"`` where the beams
+            through the turntable's axis ended a noisy stem below the skeleton's walk
+            (:func:`plantsim.evaluation.segmentation.beam_stem_top`), ``"walk"`` where
+            the walk up the stem's column stopped (a trait note says why the beams did
+            not end a noisy one); ``""`` for the truth.
     """
 
     index: int
@@ -191,6 +200,8 @@ class Stem:
     rms_residual_m: float = _NAN
     n_points: int = 0
     diameter_resolved: bool = True
+    height_m: float = _NAN
+    height_from: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1778,21 +1789,28 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
     # top; no stem can then read taller than the plant.
+    def stem_heights_of(grid) -> list[float]:
+        return [robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points)
+                if len(sp) else _NAN for sp in (grid.points[grid.stem_label == i] for i in range(len(grid.stems)))]
+
     def stem_height_of(grid) -> float:
-        tops = [robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points)
-                for sp in (grid.points[grid.stem_label == i] for i in range(len(grid.stems))) if len(sp)]
+        tops = [h for h in stem_heights_of(grid) if not math.isnan(h)]
         return max(tops) if tops else _NAN
 
+    own_heights = stem_heights_of(seg)
+    stems = tuple(dataclasses.replace(
+        st, height_m=own_heights[st.index],
+        height_from="beams" if math.isfinite(seg.stem_walk_tops_z_m[st.index] if st.index < len(
+            seg.stem_walk_tops_z_m) else _NAN) else "walk") for st in stems)
     stem_height = stem_height_of(seg)
     # What every grid reads: where the walk up a stem goes on or stops depends on the
     # grid (the ideal 9-leaf maize's stem, 0.42 m, reads 0.25-0.51 m over the 9 grids).
     grid_stem_heights = tuple(stem_height if g is seg else stem_height_of(g) for g in grids)
     for si, why in enumerate(seg.stem_beam_top_refusals):
-        sp = seg.points[seg.stem_label == si]
-        if not why or not len(sp):
+        if not why or math.isnan(own_heights[si]):
             continue
         st = seg.stems[si]
-        h_mm = 1e3 * robust_height(sp, base_z=s.base_z, scale=seg.scale, min_points=top_min_points)
+        h_mm = 1e3 * own_heights[si]
         notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: its "
                      f"top, {h_mm:.0f} mm up, is where the skeleton's walk up its column stopped, "
                      "and a leaf rising from the stem within that column carries the walk on up it (it "
@@ -1953,6 +1971,7 @@ def traits_from_truth(truth: Mapping[str, Any]) -> PlantTraits:
             index=int(st.get("index", i)),
             center_xy_m=(float(st["base_xy_m"][0]), float(st["base_xy_m"][1])),
             diameter_m=_num(st, "diameter_m", f"truth['stems'][{i}]"),
+            height_m=_num(st, "height_m", f"truth['stems'][{i}]"),
         )
         for i, st in enumerate(truth.get("stems") or ())
     )
