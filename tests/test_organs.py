@@ -291,6 +291,67 @@ def test_stem_base_placement_ignores_a_drooping_leaf_and_a_pot():
     assert np.allclose(xy, [0.2, -0.1], atol=0.002), why
 
 
+def test_a_users_base_point_in_the_files_units_and_axes_goes_on_the_axis(tmp_path, caplog):
+    # The "or a user's point": a point read off the mesh in a viewer, in the
+    # file's own units and axes, goes to the turntable's origin (the axis at the disk top).
+    from plantsim.transforms import apply_T
+
+    plant = make_wheat(seed=0)
+    # The wheat as a file in millimetres with y up: (x, y, z) m -> (1000 x, 1000 z, -1000 y) mm.
+    v_file = np.column_stack([plant.vertices_m[:, 0], plant.vertices_m[:, 2], -plant.vertices_m[:, 1]]) * 1e3
+    main_culm_base = np.array([0.0, 0.0, 0.0])  # the generator's main culm, at its origin
+    placed = plant_from_arrays(v_file, plant.faces, units="mm", up="y", base_point=main_culm_base)
+    assert np.allclose(apply_T(placed.T_turntable_mesh, (main_culm_base * 1e-3)[None]), 0.0, atol=1e-12)
+    # A tiller's base (20.5 mm, 30.0 mm aside in the plant's x, y) lands on the axis instead.
+    tiller = plant.traits["stems"][1]["base_xy_m"]
+    tiller_file = np.array([tiller[0], 0.0, -tiller[1]]) * 1e3
+    placed = plant_from_arrays(v_file, plant.faces, units="mm", up="y", base_point=tiller_file)
+    assert np.allclose(apply_T(placed.T_turntable_mesh, (tiller_file * 1e-3)[None]), 0.0, atol=1e-12)
+    # Millimetres for a file in metres: off the plant, refused with the file's extent and unit.
+    with pytest.raises(ValueError, match=r"lies off the plant: .*\) m in the file's axes; .* units \(m\)"):
+        plant_from_arrays(plant.vertices_m, plant.faces, base_point=[1e3 * tiller[0], 1e3 * tiller[1], 0.0])
+    with pytest.raises(ValueError, match="placement 'bbox' both place the plant"):
+        plant_from_arrays(v_file, plant.faces, units="mm", up="y", placement="bbox", base_point=main_culm_base)
+    with pytest.raises(ValueError, match="T_turntable_mesh both place the plant"):
+        plant_from_arrays(v_file, plant.faces, units="mm", T_turntable_mesh=np.eye(4), base_point=main_culm_base)
+    with pytest.raises(ValueError, match="3 finite numbers"):
+        plant_from_arrays(v_file, plant.faces, units="mm", base_point=[0.0, float("nan"), 0.0])
+    # A point 100 mm up the stem sinks the plant's lower 100 mm below the disk top: said.
+    with caplog.at_level(logging.WARNING, logger="plantsim"):
+        plant_from_arrays(v_file, plant.faces, units="mm", up="y", base_point=[0.0, 100.0, 0.0])
+    assert any("below the disk top" in r.getMessage() for r in caplog.records)
+
+
+def test_scan_takes_a_base_point_from_the_command_line_and_the_config(tmp_path, capsys):
+    import trimesh
+
+    from plantsim.cli.app import main
+    from plantsim.errors import ConfigError
+    from plantsim.scan.config import PlantOptions
+
+    # A 40 mm box standing on a 10 mm stalk 60 mm off its centre, in millimetres.
+    box = trimesh.creation.box(extents=[40.0, 40.0, 40.0])
+    box.apply_translation([0.0, 0.0, 60.0])
+    stalk = trimesh.creation.cylinder(radius=5.0, height=40.0)
+    stalk.apply_translation([60.0, 0.0, 20.0])
+    mesh = tmp_path / "odd.stl"
+    mesh.write_bytes(trimesh.util.concatenate([box, stalk]).export(file_type="stl"))
+    out = tmp_path / "odd.las"
+    assert main(["scan", str(mesh), "--units", "mm", "--base-point", "0", "0", "40", "-o", str(out),
+                 "--step-deg", "90", "--ideal", "--no-pictures"]) == 0
+    meta = json.loads((tmp_path / "odd.las.json").read_text())
+    assert meta["config"]["plant"]["base_point"] == [0.0, 0.0, 40.0]
+    assert np.allclose(np.array(meta["plant"]["T_turntable_mesh"])[:3, 3], [0.0, 0.0, -0.04])
+    capsys.readouterr()
+    # The same from a TOML file; with another placement, one line says to drop one.
+    toml = tmp_path / "rig.toml"
+    toml.write_text(f'[plant]\nmesh = "{mesh}"\nunits = "mm"\nbase_point = [0, 0, 40]\nplacement = "bbox"\n')
+    assert main(["scan", "--config", str(toml), "-o", str(out), "--step-deg", "90", "--ideal", "--no-pictures"]) == 2
+    assert "base_point and placement = 'bbox' both place the plant" in capsys.readouterr().err
+    with pytest.raises((ValueError, ConfigError), match="3 finite numbers"):
+        PlantOptions(base_point=(0.0, 1.0))
+
+
 def test_rig_fit_warns_and_fits():
     plant = make_maize(seed=0)
     placed = plant_from_arrays(plant.vertices_m, plant.faces)

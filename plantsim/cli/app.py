@@ -24,7 +24,7 @@ def scan_overrides(args: argparse.Namespace) -> dict:
     """Command-line options as a nested dict in the TOML layout (only those given)."""
     pairs = {
         ("plant", "mesh"): _opt(args, "mesh"), ("plant", "units"): _opt(args, "units"), ("plant", "up"): _opt(args, "up"),
-        ("plant", "placement"): _opt(args, "placement"),
+        ("plant", "placement"): _opt(args, "placement"), ("plant", "base_point"): _opt(args, "base_point"),
         ("scan", "step_deg"): _opt(args, "step_deg"), ("scan", "sweep_deg"): _opt(args, "sweep_deg"),
         ("output", "path"): _opt(args, "output"), ("output", "plant_only"): _opt(args, "plant_only") or None,
         ("seed",): _opt(args, "seed"), ("ideal",): _opt(args, "ideal") or None, ("threads",): _opt(args, "threads"),
@@ -199,6 +199,10 @@ def add_common_scan_options(parser: argparse.ArgumentParser, *, preset_flag: str
     parser.add_argument("--up", choices=["x", "y", "z"], help="the mesh file's up axis (default z)")
     parser.add_argument("--placement", choices=["base", "bbox", "none"],
                         help="how the plant sits on the disk (default base: base centred on the axis)")
+    parser.add_argument("--base-point", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                        help="put this point of the mesh on the axis at the disk top instead of the stem base "
+                             "found (a pot's centre, a main culm among tillers): the mesh file's own units "
+                             "and axes")
     parser.add_argument("--step-deg", type=float, help="turntable step, degrees (default 1)")
     parser.add_argument("--sweep-deg", type=float, help="total turn, degrees (default 360)")
     parser.add_argument("--seed", type=int, help="seed of all randomness (default 0)")

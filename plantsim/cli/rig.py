@@ -59,6 +59,8 @@ def add_rig_commands(subparsers: argparse._SubParsersAction) -> argparse._SubPar
     emulator.add_argument("--up", choices=["x", "y", "z"], help="(--lidar) the mesh file's up axis (default z)")
     emulator.add_argument("--placement", choices=["base", "bbox", "none"],
                           help="(--lidar) how the plant sits on the disk (default base)")
+    emulator.add_argument("--base-point", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                          help="(--lidar) put this point of the mesh on the axis (the file's units and axes)")
     emulator.add_argument("--sensor", choices=["ideal", "realistic"],
                           help="(--lidar) the emulated LiDAR's ranges: ideal (exact first hits) or realistic "
                                "(the sensor model: footprint, noise, dropouts; the default)")
@@ -287,7 +289,8 @@ def run_emulator(args: argparse.Namespace) -> int:
     from plantsim.hardware.dynamixel.emulator import DynamixelEmulator
 
     ids = args.ids or [1]
-    lidar_only = [f"--{name}" for name in ("config", "units", "up", "placement", "sensor", "seed")
+    lidar_only = [f"--{name.replace('_', '-')}" for name in ("config", "units", "up", "placement", "base_point",
+                                                             "sensor", "seed")
                   if getattr(args, name, None) is not None] + (["MESH"] if getattr(args, "mesh", None) else [])
     if getattr(args, "lidar", False):
         return _run_emulator_pair(args, ids)

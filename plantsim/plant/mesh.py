@@ -14,6 +14,7 @@ import io
 import logging
 import math
 import os
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -403,9 +404,35 @@ def _check_size(height_m: float, units: str, source: str) -> None:
                 source, height_m, units, hint)
 
 
+def _base_point_up(base_point: Any, units: str, R: np.ndarray, vertices_up: np.ndarray,
+                   source: str) -> np.ndarray:
+    """A user's base point, given in the mesh file's units and axes, in up-aligned metres;
+    refused when it lies off the plant (another unit or axis order, most likely)."""
+    p = np.asarray(base_point, dtype=np.float64).reshape(-1)
+    if p.shape != (3,) or not np.isfinite(p).all():
+        raise ValueError(f"base_point must be 3 finite numbers (x, y, z in the mesh file's units and axes), "
+                         f"got {base_point!r}")
+    point_up = R @ (p * UNITS_TO_M[units])
+    lo, hi = vertices_up.min(axis=0), vertices_up.max(axis=0)
+    slack = 0.1 * float(np.max(hi - lo))
+    outside = float(np.max(np.maximum(lo - slack - point_up, point_up - hi - slack)))
+    if outside > 0:
+        to_file = R.T / UNITS_TO_M[units]
+        lo_f, hi_f = np.sort(np.stack([to_file @ lo, to_file @ hi]), axis=0)
+        raise ValueError(
+            f"base_point ({', '.join(f'{x:g}' for x in p)}) lies off the plant: the mesh spans "
+            f"({', '.join(f'{x:.4g}' for x in lo_f)})..({', '.join(f'{x:.4g}' for x in hi_f)}) {units} in the "
+            f"file's axes; give the point in the file's own units ({units}) and axes")
+    below = float(point_up[2] - lo[2])
+    if below > slack:
+        log.warning("%s: base point %.4g m above the plant's lowest point: the plant's lower %.4g m "
+                    "lies below the disk top", source, below, below)
+    return point_up
+
+
 def plant_from_arrays(vertices: np.ndarray, faces: np.ndarray, *, units: str = "m",
                       up: str = "z", placement: str = "base",
-                      T_turntable_mesh: np.ndarray | None = None,
+                      T_turntable_mesh: np.ndarray | None = None, base_point: Any = None,
                       source: str = "<memory>", n_faces_in_file: int | None = None) -> PlantMesh:
     """Builds a :class:`PlantMesh` from arrays (see :func:`load_plant` for the options)."""
     if units not in UNITS_TO_M:
@@ -414,13 +441,20 @@ def plant_from_arrays(vertices: np.ndarray, faces: np.ndarray, *, units: str = "
         raise ValueError(f"up must be one of x, y, z, got {up!r}")
     if placement not in PLACEMENTS:
         raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, got {placement!r}")
+    if base_point is not None and (T_turntable_mesh is not None or placement != "base"):
+        other = "T_turntable_mesh" if T_turntable_mesh is not None else f"placement {placement!r}"
+        raise ValueError(f"base_point and {other} both place the plant: give one")
     n_in = len(faces) if n_faces_in_file is None else n_faces_in_file
     vertices, faces, n_dropped = clean_arrays(vertices, faces, source=source)
     vertices_m = vertices * UNITS_TO_M[units]
     if T_turntable_mesh is None:
         R = _R_UP[up]
         vertices_up = vertices_m @ R.T
-        T = make_T(R, placement_transform(vertices_up, placement))
+        point = None if base_point is None else _base_point_up(base_point, units, R, vertices_up, source)
+        if point is not None:
+            log.info("placement: the base point given, (%.4g, %.4g, %.4g) m up-aligned, on the axis at the "
+                     "disk top", *point)
+        T = make_T(R, placement_transform(vertices_up, placement, base_point=point))
         height = float(np.ptp(vertices_up[:, 2]))
     else:
         T = np.asarray(T_turntable_mesh, dtype=np.float64)
@@ -438,7 +472,8 @@ def plant_from_arrays(vertices: np.ndarray, faces: np.ndarray, *, units: str = "
 
 
 def load_plant(path: str | os.PathLike, *, units: str = "m", up: str = "z",
-               placement: str = "base", T_turntable_mesh: np.ndarray | None = None) -> PlantMesh:
+               placement: str = "base", T_turntable_mesh: np.ndarray | None = None,
+               base_point: Any = None) -> PlantMesh:
     """Reads a plant mesh (STL binary or ASCII, OBJ, PLY) and places it on the turntable.
 
     Args:
@@ -450,6 +485,13 @@ def load_plant(path: str | os.PathLike, *, units: str = "m", up: str = "z",
         coordinates, after units and up axis, are turntable coordinates).
       T_turntable_mesh: an explicit (4, 4) rigid placement (mesh metres ->
         turntable); overrides ``up`` and ``placement``.
+      base_point: a user's base point, x, y, z in the file's own units and axes
+        (as a mesh viewer shows them), put on the axis at the disk top instead of
+        the base :func:`find_stem_base` finds (a pot's centre, the main culm of a
+        clump of tillers); with ``placement`` "base" only, not with
+        ``T_turntable_mesh``. Refused off the plant (10 % of its size beyond its
+        bounding box); a point above the plant's lowest sinks the rest below the
+        disk top, and a warning says so.
 
     Returns:
       The placed :class:`PlantMesh`.
@@ -468,7 +510,7 @@ def load_plant(path: str | os.PathLike, *, units: str = "m", up: str = "z",
         raise ValueError(f"unsupported mesh format {path.suffix or '(none)'!r} for {path}; "
                          f"use one of {', '.join(MESH_FORMATS)}")
     vertices, faces = _read_arrays(path)
-    return plant_from_arrays(vertices, faces, units=units, up=up, placement=placement,
+    return plant_from_arrays(vertices, faces, units=units, up=up, placement=placement, base_point=base_point,
                              T_turntable_mesh=T_turntable_mesh, source=str(path))
 
 

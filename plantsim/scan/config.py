@@ -38,6 +38,10 @@ class PlantOptions:
       up: the file's up axis: "x", "y", "z".
       placement: "base", "bbox" or "none" (see :func:`plantsim.mesh.load_plant`).
       T_turntable_mesh: explicit rigid placement, 4x4 row-major nested lists, or None.
+      base_point: a point put on the axis at the disk top, x, y, z in the mesh
+        file's own units and axes, instead of the stem base found (a pot's centre,
+        the main culm of a clump of tillers); with ``placement`` "base" only, not
+        with ``T_turntable_mesh`` (see :func:`plantsim.plant.mesh.load_plant`).
       areal_density_kg_m2: mass per area for the plant's inertial.
     """
 
@@ -47,6 +51,7 @@ class PlantOptions:
     up: str = "z"
     placement: str = "base"
     T_turntable_mesh: tuple | None = None
+    base_point: tuple | None = None
     areal_density_kg_m2: float = 0.3
 
     def __post_init__(self):
@@ -58,6 +63,17 @@ class PlantOptions:
             raise ValueError(f"up must be one of x, y, z, got {self.up!r}")
         if self.placement not in PLACEMENTS:
             raise ValueError(f"placement must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
+        if self.base_point is not None:
+            if not (isinstance(self.base_point, (tuple, list)) and len(self.base_point) == 3
+                    and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                            for x in self.base_point)):
+                raise ValueError(f"base_point must be 3 finite numbers (x, y, z in the mesh file's units and "
+                                 f"axes), got {self.base_point!r}")
+            object.__setattr__(self, "base_point", tuple(float(x) for x in self.base_point))
+            if self.T_turntable_mesh is not None or self.placement != "base":
+                other = "T_turntable_mesh" if self.T_turntable_mesh is not None else f"placement = {self.placement!r}"
+                raise ValueError(f"base_point and {other} both place the plant: remove one (base_point goes "
+                                 "with placement = \"base\")")
         if not (isinstance(self.areal_density_kg_m2, (int, float))
                 and math.isfinite(self.areal_density_kg_m2) and self.areal_density_kg_m2 > 0):
             raise ValueError(f"areal_density_kg_m2 must be a positive number, got {self.areal_density_kg_m2!r}")

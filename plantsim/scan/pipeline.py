@@ -136,11 +136,12 @@ def load_configured_plant(config: RunConfig) -> PlantMesh:
     T = None if options.T_turntable_mesh is None else np.array(options.T_turntable_mesh)
     placement = options.placement
     if not options.mesh and options.bundled == "calibration-target" and "plant.placement" not in config.explicit \
-            and placement == "base":
+            and placement == "base" and options.base_point is None:
         # The target stands where it is built (plantsim.plant.target); "base" would centre its
         # footprint (block and dowel together) and move the block off the axis.
         placement = "none"
-    return load_plant(path, units=options.units, up=options.up, placement=placement, T_turntable_mesh=T)
+    return load_plant(path, units=options.units, up=options.up, placement=placement, T_turntable_mesh=T,
+                      base_point=options.base_point)
 
 
 def journal_path_for(output: str | os.PathLike) -> Path:
