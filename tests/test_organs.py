@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import logging
+import re
 
 import numpy as np
 import pytest
@@ -291,6 +292,24 @@ def test_stem_base_placement_ignores_a_drooping_leaf_and_a_pot():
     assert np.allclose(xy, [0.2, -0.1], atol=0.002), why
 
 
+def test_placement_says_when_it_chose_one_of_several_culms():
+    # A wheat's four culms rise from one slice; the column with the most slices goes on the
+    # axis (a tiller here, 36 mm from the main culm), and the placement says so and lists
+    # the others, with the option that chooses another.
+    plant = make_wheat(seed=0)
+    xy, why = find_stem_base(plant.vertices_m)
+    assert "4 columns rise from the lowest slice" in why and "--base-point" in why
+    culms = [tuple(st["base_xy_m"]) for st in plant.traits["stems"]]
+    listed = [tuple(float(x) for x in m) for m in re.findall(r"\((-?[\d.]+), (-?[\d.]+)\)", why.split(";")[1])]
+    assert len(listed) == 3
+    for c in listed + [tuple(xy)]:
+        assert min(np.hypot(c[0] - b[0], c[1] - b[1]) for b in culms) < 0.003
+    placed = plant_from_arrays(plant.vertices_m, plant.faces)
+    assert placed.placement.startswith("base: stem base at") and placed.summary()["placement"] == placed.placement
+    # One stem: nothing to say.
+    assert "columns rise" not in find_stem_base(make_maize(seed=0, n_leaves=4).vertices_m)[1]
+
+
 def test_a_users_base_point_in_the_files_units_and_axes_goes_on_the_axis(tmp_path, caplog):
     # The "or a user's point": a point read off the mesh in a viewer, in the
     # file's own units and axes, goes to the turntable's origin (the axis at the disk top).
@@ -342,6 +361,7 @@ def test_scan_takes_a_base_point_from_the_command_line_and_the_config(tmp_path, 
     meta = json.loads((tmp_path / "odd.las.json").read_text())
     assert meta["config"]["plant"]["base_point"] == [0.0, 0.0, 40.0]
     assert np.allclose(np.array(meta["plant"]["T_turntable_mesh"])[:3, 3], [0.0, 0.0, -0.04])
+    assert meta["plant"]["placement"].startswith("base point (0.0000, 0.0000, 0.0400) m")
     capsys.readouterr()
     # The same from a TOML file; with another placement, one line says to drop one.
     toml = tmp_path / "rig.toml"

@@ -48,6 +48,8 @@ class PlantMesh:
       up: the file's up axis ("x", "y", "z").
       n_faces_in_file: faces read before cleaning.
       n_degenerate_dropped: faces dropped for repeated indices or zero area.
+      placement: how it was put on the disk, and why there (the stem base found,
+        a user's base point, ...); the sidecar's ``plant.placement``.
     """
 
     vertices_mesh: np.ndarray
@@ -58,6 +60,7 @@ class PlantMesh:
     up: str = "z"
     n_faces_in_file: int = 0
     n_degenerate_dropped: int = 0
+    placement: str = ""
 
     @functools.cached_property
     def vertices_turntable(self) -> np.ndarray:
@@ -91,6 +94,7 @@ class PlantMesh:
             "n_degenerate_dropped": self.n_degenerate_dropped,
             "bounds_turntable_m": [lo.tolist(), hi.tolist()],
             "T_turntable_mesh": self.T_turntable_mesh.tolist(),
+            "placement": self.placement,
         }
 
 
@@ -294,7 +298,9 @@ def find_stem_base(vertices_up: np.ndarray, *, max_stem_diameter_m: float = 0.05
     clustered in XY (single linkage at 3 % of the height); a compact cluster
     (extent <= ``max_stem_diameter_m``) that appears at the same place (within its
     own extent) in at least 5 slices is a stem column. The column whose lowest slice
-    is lowest wins (the main stem); ties go to the most slices. A drooping leaf
+    is lowest wins (the main stem); ties go to the most slices, and the explanation
+    lists the others (a wheat's tillers rise from one slice, and the column with the
+    most slices is one of them, not necessarily its main culm). A drooping leaf
     crosses few slices at one place, and a pot is wider than a stem, so neither is
     taken for the base. With no column, the XY centre of the lowest 2 % is used and
     the explanation says so.
@@ -349,8 +355,16 @@ def find_stem_base(vertices_up: np.ndarray, *, max_stem_diameter_m: float = 0.05
     stems = [c for c in columns if c[2] >= 5]
     if stems:
         best = min(stems, key=lambda c: (c[3], -c[2]))
-        return best[0], (f"stem base at ({best[0][0]:.4f}, {best[0][1]:.4f}) m: a column "
-                         f"{best[1] * 1e3:.1f} mm wide over {best[2]} slices of {dz * 1e3:.1f} mm")
+        why = (f"stem base at ({best[0][0]:.4f}, {best[0][1]:.4f}) m: a column "
+               f"{best[1] * 1e3:.1f} mm wide over {best[2]} slices of {dz * 1e3:.1f} mm")
+        tied = [c for c in stems if c[3] == best[3]]
+        if len(tied) > 1:
+            # Culms of one crown (a wheat's tillers) rise from the same slice: the one with
+            # the most slices need not be the main culm. Said, with how to choose another.
+            others = ", ".join(f"({c[0][0]:.4f}, {c[0][1]:.4f})" for c in tied if c is not best)
+            why += (f"; {len(tied)} columns rise from the lowest slice (culms of one crown?), the others at "
+                    f"{others} m: --base-point X Y Z puts another point on the axis")
+        return best[0], why
     band = max(0.02 * h, 1e-3)
     foot = vertices_up[z <= z_min + band, :2]
     centre = 0.5 * (foot.min(axis=0) + foot.max(axis=0))
@@ -373,21 +387,29 @@ def placement_transform(vertices_up: np.ndarray, placement: str, *,
     Returns:
       (3,) float64, metres.
     """
+    return _placement_and_note(vertices_up, placement, base_point=base_point)[0]
+
+
+def _placement_and_note(vertices_up: np.ndarray, placement: str, *,
+                        base_point: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """:func:`placement_transform`'s translation, and how and why (a sentence)."""
     if base_point is not None:
         p = np.asarray(base_point, dtype=np.float64).reshape(-1)
         if p.shape != (3,) or not np.isfinite(p).all():
             raise ValueError(f"base_point must be 3 finite numbers (metres), got {base_point!r}")
-        return -p
+        return -p, f"base point ({p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}) m (up-aligned) on the axis at the disk top"
     if placement == "none":
-        return np.zeros(3)
+        return np.zeros(3), "none: the file's coordinates (units and up axis applied)"
     z_min = vertices_up[:, 2].min()
     if placement == "base":
         centre_xy, why = find_stem_base(vertices_up)
         log.info("placement base: %s", why)
+        note = f"base: {why}"
     else:
         foot = vertices_up[:, :2]
         centre_xy = 0.5 * (foot.min(axis=0) + foot.max(axis=0))
-    return -np.array([centre_xy[0], centre_xy[1], z_min])
+        note = "bbox: the bounding box's XY centre on the axis"
+    return -np.array([centre_xy[0], centre_xy[1], z_min]), note + "; the lowest point on the disk top"
 
 
 def _check_size(height_m: float, units: str, source: str) -> None:
@@ -454,7 +476,8 @@ def plant_from_arrays(vertices: np.ndarray, faces: np.ndarray, *, units: str = "
         if point is not None:
             log.info("placement: the base point given, (%.4g, %.4g, %.4g) m up-aligned, on the axis at the "
                      "disk top", *point)
-        T = make_T(R, placement_transform(vertices_up, placement, base_point=point))
+        t, note = _placement_and_note(vertices_up, placement, base_point=point)
+        T = make_T(R, t)
         height = float(np.ptp(vertices_up[:, 2]))
     else:
         T = np.asarray(T_turntable_mesh, dtype=np.float64)
@@ -466,9 +489,11 @@ def plant_from_arrays(vertices: np.ndarray, faces: np.ndarray, *, units: str = "
             raise ValueError("T_turntable_mesh must be rigid: a rotation (orthonormal, det +1) "
                              "and a translation, last row [0, 0, 0, 1]")
         height = float(np.ptp(apply_T(T, vertices_m)[:, 2]))
+        note = "T_turntable_mesh given"
     _check_size(height, units, source)
     return PlantMesh(vertices_mesh=vertices_m, faces=faces, T_turntable_mesh=T, source=source,
-                     units=units, up=up, n_faces_in_file=int(n_in), n_degenerate_dropped=n_dropped)
+                     units=units, up=up, n_faces_in_file=int(n_in), n_degenerate_dropped=n_dropped,
+                     placement=note)
 
 
 def load_plant(path: str | os.PathLike, *, units: str = "m", up: str = "z",
