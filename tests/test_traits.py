@@ -116,6 +116,11 @@ def test_each_stem_has_its_own_height(tmp_path, capsys):
         (true,) = [tr for tr in truth.stems if np.hypot(*np.subtract(tr.center_xy_m, st.center_xy_m)) < 0.005]
         assert st.height_m == pytest.approx(true.height_m, rel=0.05) and st.height_from == "walk"
     assert t.stem_height_m == max(st.height_m for st in t.stems)
+    # The comparison with the truth matches stems by centre and gives each one's height.
+    c = traits.compare_traits(t, truth)
+    for k, true in enumerate(plant.traits["stems"]):
+        e = c[f"stem[{k}].height_m"]
+        assert e.reference == true["height_m"] and e.relative_error <= 0.05
     # The CLI prints every stem of a plant with several.
     path = tmp_path / "tillers.ply"
     header = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\n"

@@ -2109,9 +2109,11 @@ def compare_traits(estimate: PlantTraits, reference: PlantTraits) -> TraitCompar
 
     Scalar traits are compared when both are finite. Stems are matched one-to-one by
     their centres (Hungarian assignment on XY distance, ``scipy.optimize
-    .linear_sum_assignment``); each matched pair adds ``stem[i].diameter_m`` and
+    .linear_sum_assignment``); each matched pair adds ``stem[i].diameter_m``,
     ``stem[i].center_offset_m`` (reference index i; the offset has reference 0, so
-    its relative error is NaN). Leaves are not matched one by one.
+    its relative error is NaN) and, where both give it, ``stem[i].height_m`` (a
+    tiller's own height: ``stem_height_m`` compares only the tallest's). Leaves are
+    not matched one by one.
 
     Args:
         estimate: traits from a cloud.
@@ -2134,6 +2136,8 @@ def compare_traits(estimate: PlantTraits, reference: PlantTraits) -> TraitCompar
             ref = reference.stems[j]
             errors.append(trait_error(f"stem[{ref.index}].diameter_m", estimate.stems[i].diameter_m, ref.diameter_m))
             errors.append(trait_error(f"stem[{ref.index}].center_offset_m", cost[i, j], 0.0))
+            if math.isfinite(estimate.stems[i].height_m) and math.isfinite(ref.height_m):
+                errors.append(trait_error(f"stem[{ref.index}].height_m", estimate.stems[i].height_m, ref.height_m))
     for name in ("stem_count", "leaf_count", "lamina_count"):
         s_val, r_val = getattr(estimate, name), getattr(reference, name)
         if r_val:
