@@ -177,3 +177,22 @@ def test_bad_input_exits_with_one_clear_line_and_no_output(tmp_path, small_mesh,
     assert message in lines[0]
     assert set(p.name for p in tmp_path.iterdir()) == before  # nothing written, no temp files
     assert not (tmp_path / "scan.las").exists()
+
+
+def test_the_evaluation_line_gives_each_stems_height_error_beside_the_tallests():
+    # The stem height compared is the tallest stem's; a tiller read far off (the bundled
+    # wheat's main culm: 52 mm for 543 at 1 degree) shows only in each stem's own error.
+    import types
+
+    from plantsim.cli.app import _evaluation_line
+    from plantsim.evaluation import traits
+
+    errors = (traits.trait_error("height_m", 0.538, 0.5425),
+              traits.trait_error("stem[0].height_m", 0.052, 0.5425),
+              traits.trait_error("stem[1].height_m", 0.498, 0.520))
+    comparison = traits.TraitComparison(errors=errors, n_stems=(2, 2), n_leaves=(0, 0))
+    m = types.SimpleNamespace(median=1e-6, p95=1e-5, chamfer=5e-4, coverage=0.9, coverage_distance=0.002)
+    line = _evaluation_line(types.SimpleNamespace(metrics=m, traits=comparison))
+    assert line.endswith("trait errors: height 0.8%, stem heights 4.2%-90.4%")
+    one = traits.TraitComparison(errors=errors[:2], n_stems=(1, 1), n_leaves=(0, 0))
+    assert "stem heights" not in _evaluation_line(types.SimpleNamespace(metrics=m, traits=one))

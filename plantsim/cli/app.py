@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import gc
 import logging
+import math
 import os
 import sys
 import time
@@ -244,6 +245,12 @@ def _evaluation_line(evaluation) -> str:
     if evaluation.traits is not None:
         parts = [f"{e.trait.removesuffix('_m')} {e.relative_error:.1%}" for e in evaluation.traits.errors
                  if e.trait in ("height_m", "stem_diameter_m", "mean_stem_distance_m", "leaf_width_m")]
+        # Several stems: each one's height error (the stem height compared above is the
+        # tallest's, and a tiller read far off hides behind it).
+        own = [e.relative_error for e in evaluation.traits.errors
+               if e.trait.startswith("stem[") and e.trait.endswith("].height_m") and math.isfinite(e.relative_error)]
+        if len(own) > 1:
+            parts.append(f"stem heights {min(own):.1%}-{max(own):.1%}")
         text += "; trait errors: " + ", ".join(parts)
     return text
 

@@ -159,8 +159,10 @@ def cmd_traits(args: argparse.Namespace) -> int:
             return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v * scale:.4g}{unit}"
         # A diameter the noise hides is the noisy column's width: shown as a bound.
         bound = "<= " if any(not st.get("diameter_resolved", True) for st in out.get("stems", ())) else ""
+        tallest = " (the tallest's)" if len(out.get("stems") or ()) > 1 else ""
         print(f"height {f(out['height_m'], 1e3, ' mm')}; stems {out['stem_count']}, diameter "
-              f"{bound}{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}; "
+              f"{bound}{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}"
+              f"{tallest}; "
               f"leaves {out['leaf_count']}"
               + (f" ({out['lamina_count']} laminae)" if out.get("lamina_count", out["leaf_count"]) != out["leaf_count"]
                  else "")
