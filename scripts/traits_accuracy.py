@@ -36,7 +36,7 @@ import time
 import numpy as np
 
 from plantsim.evaluation import traits
-from plantsim.evaluation.evaluate import scan_range_noise
+from plantsim.evaluation.evaluate import scan_range_noise, truth_in_turntable
 from plantsim.evaluation.organ_match import match_leaves, procedural_leaf_labels
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
@@ -148,6 +148,13 @@ def main() -> None:
                   + (f", area {min(areas):+.0f}..{max(areas):+.0f} %" if areas else "")
                   + (f", stem height {_mm(min(stem_heights))}-{_mm(max(stem_heights))} mm" if stem_heights else ""),
                   flush=True)
+            if len(tr["stems"]) > 1:
+                # Each stem's own height, matched to the truth's by centre (turntable frame).
+                truth_here = traits.traits_from_truth(truth_in_turntable(tr, plant.T_turntable_mesh))
+                own = [e for e in traits.compare_traits(est, truth_here).errors
+                       if e.trait.startswith("stem[") and e.trait.endswith("].height_m")]
+                print(f"{'':16s} {'':7s}  each stem's height: "
+                      + ", ".join(f"{_mm(e.estimate)}/{_mm(e.reference)}" for e in own) + " mm", flush=True)
             seg = traits.segment_for_traits(pts, range_noise_m=noise)
             match = match_leaves(seg.leaf_label, procedural_leaf_labels(seg.points, pl),
                                  n_true_leaves=len(pl.traits["leaves"]))
