@@ -1793,16 +1793,19 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         return [robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points)
                 if len(sp) else _NAN for sp in (grid.points[grid.stem_label == i] for i in range(len(grid.stems)))]
 
+    def tallest(heights: list[float]) -> float:
+        return max((h for h in heights if not math.isnan(h)), default=_NAN)
+
     def stem_height_of(grid) -> float:
-        tops = [h for h in stem_heights_of(grid) if not math.isnan(h)]
-        return max(tops) if tops else _NAN
+        return tallest(stem_heights_of(grid))
 
     own_heights = stem_heights_of(seg)
-    stems = tuple(dataclasses.replace(
-        st, height_m=own_heights[st.index],
-        height_from="beams" if math.isfinite(seg.stem_walk_tops_z_m[st.index] if st.index < len(
-            seg.stem_walk_tops_z_m) else _NAN) else "walk") for st in stems)
-    stem_height = stem_height_of(seg)
+    # The beams ended a stem where its walk's top is recorded (Segmentation.stem_walk_tops_z_m).
+    walk_tops = list(seg.stem_walk_tops_z_m) + [_NAN] * (len(stems) - len(seg.stem_walk_tops_z_m))
+    stems = tuple(dataclasses.replace(st, height_m=own_heights[st.index],
+                                      height_from="beams" if math.isfinite(walk_tops[st.index]) else "walk")
+                  for st in stems)
+    stem_height = tallest(own_heights)
     # What every grid reads: where the walk up a stem goes on or stops depends on the
     # grid (the ideal 9-leaf maize's stem, 0.42 m, reads 0.25-0.51 m over the 9 grids).
     grid_stem_heights = tuple(stem_height if g is seg else stem_height_of(g) for g in grids)

@@ -14,8 +14,8 @@ import io
 import logging
 import math
 import os
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
