@@ -25,7 +25,7 @@ def _is_cloud(path: Path) -> bool:
 def cmd_render(args: argparse.Namespace) -> int:
     from plantsim.cloud.export import check_output_path, read_cloud, write_atomic  # noqa: F401
     from plantsim.cloud.render import View, png_bytes, render_cloud, render_scene
-    from plantsim.scan.config import config_from_dict, load_toml, merge
+    from plantsim.scan.config import config_from_dict, load_settings, merge
     from plantsim.scan.pipeline import load_configured_plant
 
     out = Path(args.output)
@@ -33,15 +33,31 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise ValueError(f"the picture is a PNG: give -o a .png path, got {out}")
     if not (out.parent if str(out.parent) else Path(".")).is_dir():
         raise FileNotFoundError(f"output folder does not exist: {out.parent}")
-    data = load_toml(args.config) if args.config else {}
+    # A TOML's mesh path is relative to it, a sidecar's as recorded (as plantsim scan reads them).
+    data, base_dir = load_settings(args.config) if args.config else ({}, None)
     cloud = None
     mesh = args.plant
+    said = ""
     if args.input:
         source = Path(args.input)
         if not source.is_file():
             raise FileNotFoundError(f"not found: {source}")
         if _is_cloud(source):
             cloud = read_cloud(source)
+            # The cloud's own scan: its rig, LiDAR and plant, from the sidecar beside it,
+            # not the defaults (a wheat's cloud was drawn round the bundled maize).
+            sidecar = source.with_name(source.name + ".json")
+            if not args.config and sidecar.is_file():
+                data, base_dir = load_settings(sidecar)
+                said = f"; rig, LiDAR and plant from {sidecar.name}"
+            elif not args.config and not mesh and not args.no_plant:
+                if args.colour == "error":
+                    raise ValueError("--colour error measures each point's distance to the plant's mesh, and "
+                                     f"no sidecar ({sidecar.name}) says which mesh the cloud scanned: give "
+                                     "--plant MESH (with --units/--up) or --config")
+                args.no_plant = True
+                said = ("; no sidecar beside the cloud: the default rig, and no plant (its mesh is not "
+                        "known: --plant MESH or --config draws it)")
         else:
             mesh = str(source)
     overrides = {}
@@ -50,7 +66,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     for key in ("units", "up"):
         if getattr(args, key):
             overrides.setdefault("plant", {})[key] = getattr(args, key)
-    config = config_from_dict(merge(data, overrides))
+    # A mesh given on the command line is relative to the working directory.
+    config = config_from_dict(merge(data, overrides), base_dir=None if mesh else base_dir)
     plant = None if args.no_plant else load_configured_plant(config)
     view = View(width=args.width, height=args.height, azimuth_deg=args.azimuth,
                 elevation_deg=args.elevation, distance_m=args.distance)
@@ -64,7 +81,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         image = render_cloud(cloud, config.rig, plant, lidar=lidar, colour=args.colour, view=view)
         what = f"{len(cloud):,} points by {args.colour}"
     write_atomic(out, png_bytes(image))
-    print(f"wrote {out} ({what}, {view.width}x{view.height})")
+    print(f"wrote {out} ({what}, {view.width}x{view.height}{said})")
     return 0
 
 
@@ -80,7 +97,8 @@ def add_render_command(subparsers: argparse._SubParsersAction) -> argparse.Argum
                              "(LAS/LAZ/PLY/PCD/TXT/XYZ/PTS) from plantsim scan; default: the "
                              "configured plant alone")
     render.add_argument("-o", "--output", required=True, help="the PNG to write")
-    render.add_argument("--config", help="TOML of the scan (rig, lidar, plant) as for plantsim scan")
+    render.add_argument("--config", help="TOML of the scan (rig, lidar, plant) as for plantsim scan, or a "
+                        "scan's sidecar (.json); default for a cloud: the sidecar beside it")
     render.add_argument("--plant", metavar="MESH", help="the plant mesh drawn with a cloud "
                                                         "(default: the configured plant)")
     render.add_argument("--units", choices=["m", "cm", "mm"], help="the mesh file's unit")
