@@ -49,6 +49,9 @@ TRAITS = (
     ("stem_count", "stem count", 1, ""),
     ("stem_diameter_m", "stem diameter", 1e3, "mm"),
     ("stem_height_m", "stem height", 1e3, "mm"),
+    # Several stems: the shortest one's own height (Stem.height_m); stem_height_m is the
+    # tallest's, and a culm read far short hides behind it.
+    ("shortest_stem_height_m", "stem height (shortest stem)", 1e3, "mm"),
     ("mean_stem_distance_m", "distance between stems", 1e3, "mm"),
     ("leaf_count", "leaf count", 1, ""),
     ("lamina_count", "lamina count (leaflets apart)", 1, ""),
@@ -89,6 +92,7 @@ def truth_of(plant) -> dict:
     return {
         "height_m": t["height_m"], "stem_count": len(t["stems"]), "stem_diameter_m": t["stem_diameter_m"],
         "stem_height_m": max(s["height_m"] for s in t["stems"]),
+        "shortest_stem_height_m": min(s["height_m"] for s in t["stems"]) if len(t["stems"]) > 1 else math.nan,
         "mean_stem_distance_m": t["mean_stem_distance_m"] if t["mean_stem_distance_m"] is not None else math.nan,
         # A compound leaf once (laminae on one petiole), as the cloud's leaf_count.
         "leaf_count": len(set(true_leaf_groups(t["leaves"]))), "lamina_count": len(t["leaves"]),
@@ -107,6 +111,8 @@ def estimate_of(points, range_noise_m=None) -> tuple[dict, tuple[str, ...]]:
     e = extract_traits(points, range_noise_m=range_noise_m)
     out = {key: float(getattr(e, key)) for key, *_ in TRAITS if hasattr(e, key)}
     out["median_leaf_width_m"] = _nan_median(getattr(e, "leaf_widths_m", ()))
+    own = [st.height_m for st in e.stems if math.isfinite(st.height_m)]
+    out["shortest_stem_height_m"] = min(own) if len(own) > 1 else math.nan
     out["mean_leaf_inclination_deg"] = _nan_mean(getattr(e, "leaf_inclinations_deg", ()))
     # A stem whose diameter the noise hides reads its noisy column's width: an upper bound.
     out["stem_diameter_upper_bound"] = any(not st.diameter_resolved for st in e.stems)
@@ -162,8 +168,11 @@ def rows_for(name: str, truth: dict | None, scans: dict, paper_name: str | None)
     for key, label, scale, unit in TRAITS:
         r = truth.get(key) if truth else None
         paper = PAPER.get((paper_name, key)) if paper_name else None
-        if r is not None and not math.isfinite(r) and key == "mean_stem_distance_m":
-            continue   # one stem: no distance
+        if r is not None and not math.isfinite(r) and key in ("mean_stem_distance_m", "shortest_stem_height_m"):
+            continue   # one stem: no distance, no shortest
+        if key == "shortest_stem_height_m" and r is None and not any(
+                math.isfinite(scans[s][0].get(key, math.nan)) for s, *_ in SETTINGS if s in scans):
+            continue   # no truth, and no scan found several stems
         if (r is None or not math.isfinite(r)) and paper is not None:
             r = paper[0] / 1e3 if unit == "mm" else paper[0]
             truth_text = f"{paper[0]:.4g} (paper R)"
