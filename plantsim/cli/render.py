@@ -37,6 +37,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     data, base_dir = load_settings(args.config) if args.config else ({}, None)
     cloud = None
     mesh = args.plant
+    draw_plant = not args.no_plant
     said = ""
     if args.input:
         source = Path(args.input)
@@ -50,12 +51,12 @@ def cmd_render(args: argparse.Namespace) -> int:
             if not args.config and sidecar.is_file():
                 data, base_dir = load_settings(sidecar)
                 said = f"; rig, LiDAR and plant from {sidecar.name}"
-            elif not args.config and not mesh and not args.no_plant:
+            elif not args.config and not mesh and draw_plant:
                 if args.colour == "error":
                     raise ValueError("--colour error measures each point's distance to the plant's mesh, and "
                                      f"no sidecar ({sidecar.name}) says which mesh the cloud scanned: give "
                                      "--plant MESH (with --units/--up) or --config")
-                args.no_plant = True
+                draw_plant = False
                 said = ("; no sidecar beside the cloud: the default rig, and no plant (its mesh is not "
                         "known: --plant MESH or --config draws it)")
         else:
@@ -68,7 +69,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             overrides.setdefault("plant", {})[key] = getattr(args, key)
     # A mesh given on the command line is relative to the working directory.
     config = config_from_dict(merge(data, overrides), base_dir=None if mesh else base_dir)
-    plant = None if args.no_plant else load_configured_plant(config)
+    plant = load_configured_plant(config) if draw_plant else None
     view = View(width=args.width, height=args.height, azimuth_deg=args.azimuth,
                 elevation_deg=args.elevation, distance_m=args.distance)
     lidar = None if args.no_fan else config.lidar
