@@ -28,9 +28,13 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    from every node about as near the rest as its nearest one (hung by one end, it
    reached past its leaf's tip).
 4. Roots: stems are found from the base up (:func:`find_stems`: compact XY clusters
-   of thin slices that persist over several slices, each with a circle fit); the
-   nodes near the stem bases in the lowest slice are the sources of a multi-source
-   Dijkstra geodesic distance.
+   of thin slices that persist over several slices, each with a circle fit); given
+   the range noise, stems beside the axis that it smears into streaks along the
+   beams are found in their points' turn angles, which it leaves as scanned, and
+   followed up to their tops (:func:`find_beam_stems`, :func:`track_beam_stem`: a
+   noisy wheat's tillers), their points the stem's whatever the skeleton makes of
+   them; the nodes near the stem bases in the lowest slice are the sources of a
+   multi-source Dijkstra geodesic distance.
 5. Level sets: nodes are binned by geodesic distance (bins of ``4 v``); connected
    pieces of one bin are the skeleton's nodes; a node's parent is the node holding
    the Dijkstra predecessor of its nearest member. The skeleton is a tree.
@@ -133,7 +137,8 @@ logger = logging.getLogger(__name__)
 
 __all__ = [
     "CloudScale", "Segmentation", "SegmentationSettings", "StemBase", "estimate_scale",
-    "beam_stem_top", "checked_range_noise", "find_stems", "kept_points", "node_frames", "outlier_mask",
+    "BeamStemTrack", "beam_stem_top", "checked_range_noise", "find_beam_stems", "find_stems", "kept_points",
+    "node_frames", "on_beam_stem", "outlier_mask", "track_beam_stem", "with_beam_stems",
     "segment_on_shifted_grids",
     "segment_organs", "shifted_grid_offsets", "stem_noise_points", "uniform_width", "voxel_centroids",
 ]
@@ -405,6 +410,10 @@ class StemBase:
         diameter_resolved: False when most of those slices were noise-dominated (no
             plausible circle, or one whose residual is over a quarter of its radius):
             the diameter is then the noisy column's width, an upper bound on the stem's.
+        found_in_beams: True for a stem beside the axis that the range noise hides from
+            the slices, found as a streak of turn angles (:func:`find_beam_stems`); its
+            diameter is the turn angles it spans times its distance from the axis,
+            resolved to a scanned step there, and ``rms_residual_m`` is NaN.
     """
 
     center_xy_m: tuple[float, float]
@@ -413,6 +422,7 @@ class StemBase:
     n_slices: int
     n_points: int
     diameter_resolved: bool = True
+    found_in_beams: bool = False
 
 
 def _xy_clusters(xy: np.ndarray, link: float, min_points: int) -> list[np.ndarray]:
@@ -702,6 +712,371 @@ def _diameter_above_flare(points: np.ndarray, base_z: float, centre_xy: np.ndarr
 
 
 # --------------------------------------------------------------------------
+# stems beside the axis that the range noise hides, found in the turn angles
+# --------------------------------------------------------------------------
+# A rig whose scan plane holds the turntable's axis casts every beam in a plane through
+# it: the range noise moves a point along its beam, within that plane, and leaves its
+# turn angle (its azimuth about the axis) as scanned. The beams are taken to lie in such
+# planes when the median tangential component of their directions is under this.
+_BEAM_PLANE_MAX_TANGENTIAL = 0.02
+# A stem beside the axis under range noise is a streak of turn angles: a few angles
+# wide (its diameter over its distance from the axis), its points spread along their
+# beams (radially) as the noise spreads them. Its points lie within this many standard
+# deviations of the radial noise of its axis.
+BEAM_STEM_RADIAL_SIGMAS = 3.0
+# Points beyond this many standard deviations of the radial noise from the axis are
+# no stem's on the axis (its noise disc): a streak is looked for among them.
+_BEAM_STEM_AXIS_SIGMAS = 2.5
+# A streak holds at least this many points a slice; its points spread from their median
+# distance from the axis no more than this times the radial noise does (plus a quarter of
+# its arc: a leaf running out from the axis spreads as far as it runs); and it holds this
+# many times the points the slice holds per turn angle beyond the axis's noise disc (its
+# median over 5 deg sectors: the disc's tail, and leaves).
+_BEAM_STEM_MIN_POINTS = 8
+_BEAM_STEM_MAX_SPREAD = 1.6
+_BEAM_STEM_BACKGROUND_TIMES = 3.0
+# The slices a streak is looked for in, and followed up through, are this many voxels
+# thick: twice find_stems' noisy slices, as a thin stem beside the axis is met by a few
+# scanned turn angles only (a 4 mm culm 60 mm out by 4 of 1 deg), and each slice must
+# hold _BEAM_STEM_MIN_POINTS of its points.
+BEAM_STEM_SLICE_VOXELS = 4.0
+# A stem leans at most this far from upright over the base slices, radially or round the
+# axis (a procedural wheat's tillers lean 3-4 deg): a leaf rising steeply beside the axis
+# is a streak too, but its distance from the axis grows slice by slice.
+BEAM_STEM_MAX_LEAN_DEG = 20.0
+# Its track up the plant ends after this many slices in a row without the streak.
+_BEAM_STEM_MAX_MISSES = 3
+
+
+class _TurnGeometry(typing.NamedTuple):
+    """Where each point lies about the turntable's axis, and how its noise moves it."""
+
+    azimuth: np.ndarray       # (n,) rad, each point's turn angle about the axis
+    rho: np.ndarray           # (n,) m, its distance from the axis
+    radial_sigma: np.ndarray  # (n,) m, its range noise's component away from the axis
+    sigma_r: float            # m, the RMS of radial_sigma
+    step: float               # rad, the spacing of the scanned turn angles
+
+
+def _turn_geometry(points: np.ndarray, noise: np.ndarray) -> _TurnGeometry | None:
+    """The points' turn angles and radial noise; None when a point has no noise or the
+    beams do not lie in planes through the axis (their turn angles are then noisy too)."""
+    sigma = np.linalg.norm(noise, axis=1)
+    if not len(points) or not np.all(sigma > 0):
+        return None
+    phi = np.arctan2(points[:, 1], points[:, 0])
+    rho = np.hypot(points[:, 0], points[:, 1])
+    cos, sin = np.cos(phi), np.sin(phi)
+    tangential = np.abs(-noise[:, 0] * sin + noise[:, 1] * cos) / sigma
+    if float(np.median(tangential)) > _BEAM_PLANE_MAX_TANGENTIAL:
+        return None
+    radial = np.abs(noise[:, 0] * cos + noise[:, 1] * sin)
+    sigma_r = float(np.sqrt(np.mean(radial ** 2)))
+    # The scanned turn angles, from the points beyond the axis's noise disc (a point
+    # near the axis, rounded to a file's grid, moves in turn angle): distinct values
+    # 0.05 deg apart or more; the step is the median gap between them.
+    far = rho > _BEAM_STEM_AXIS_SIGMAS * sigma_r
+    angles = np.unique(np.round(np.degrees(phi[far]) / 0.05)) * 0.05
+    gaps = np.diff(angles)
+    gaps = gaps[gaps > 0.075]
+    if not len(gaps):
+        return None
+    return _TurnGeometry(phi, rho, radial, sigma_r, math.radians(float(np.median(gaps))))
+
+
+def _turn_offset(phi: np.ndarray, centre: float) -> np.ndarray:
+    """Turn angles less ``centre``, wrapped to (-pi, pi]."""
+    return (phi - centre + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _on_axis(stem: StemBase) -> bool:
+    """Whether the turntable's axis lies within half a stem's width of its centre."""
+    return math.hypot(*stem.center_xy_m) <= 0.5 * stem.diameter_m
+
+
+def with_beam_stems(stems: tuple[StemBase, ...], beside: tuple[StemBase, ...]) -> tuple[StemBase, ...]:
+    """The stems the slices found (:func:`find_stems`) and those found in the turn angles
+    (:func:`find_beam_stems`), sorted by x then y: a noisy column off the axis that
+    the slices found (its diameter unresolved) gives way to a stem found in the turn
+    angles within half its width of its centre, which reads its diameter."""
+    def replaced(st: StemBase) -> bool:
+        return not st.diameter_resolved and not _on_axis(st) and any(
+            math.hypot(b.center_xy_m[0] - st.center_xy_m[0], b.center_xy_m[1] - st.center_xy_m[1])
+            <= 0.5 * st.diameter_m for b in beside)
+
+    return tuple(sorted([st for st in stems if not replaced(st)] + list(beside), key=lambda st: st.center_xy_m))
+
+
+class _Streak(typing.NamedTuple):
+    """One stem candidate in one slice: a streak of turn angles (:func:`find_beam_stems`)."""
+
+    slice_index: int
+    azimuth: float      # rad, its median turn angle
+    rho: float          # m, its median distance from the axis
+    diameter_m: float   # the turn angles it spans times its distance (:func:`_streak_diameter`)
+    n_points: int
+
+
+def _streak_diameter(phi: np.ndarray, rho: float, step: float) -> float:
+    """A thin stem's diameter from the turn angles its points were scanned at:
+    ``count x step x rho``, ``count`` the scanned angles holding a quarter of the
+    fullest one's points or more (a stray point of another organ holds an angle alone).
+    A stem of diameter d beside the axis meets on average ``d / (step rho)`` of the
+    planes through it, whatever their phase: within ``step x rho`` of d on one slice,
+    wider by the beam's footprint (a beam grazing its edge returns a point)."""
+    _, counts = np.unique(np.round(phi / step), return_counts=True)
+    return int(np.count_nonzero(counts >= 0.25 * counts.max())) * step * rho
+
+
+def find_beam_stems(points: np.ndarray, noise: np.ndarray, *, base_z: float, scale: CloudScale,
+                    max_diameter_m: float, stems: tuple[StemBase, ...] = (), n_slices: int = 6,
+                    min_slices: int = 3) -> tuple[StemBase, ...]:
+    """Stems beside the turntable's axis that the range noise hides from
+    :func:`find_stems`, found in the turn angles of their points.
+
+    A rig whose scan plane holds the axis casts each beam in a plane through it; the
+    noise moves a point along its beam and leaves its turn angle as scanned. A thin
+    stem ``rho`` from the axis is met by the planes within ``d / rho`` of its own
+    angle: under range noise several times its diameter (a wheat tiller's 4 mm culm
+    under the URG-04LX's 10-12 mm) its points fill a streak a few turn angles wide and
+    centimetres long along the beams, which no slice's clusters in x, y hold as a
+    compact column. In each of the ``n_slices`` base slices (``BEAM_STEM_SLICE_VOXELS``
+    voxels thick, from one slice above ``base_z``), the points beyond the axis's noise
+    disc (2.5 standard deviations of the radial noise) are grouped by turn angle (gaps
+    of 2.5 scanned steps part them); a group is a streak when it holds 8 points or
+    more, spans at most ``max_diameter_m`` and twice the radial noise in arc, its points
+    spread from their median distance no more than 1.6 times the radial noise does
+    (plus a quarter of its arc), and it holds three times the slice's background per
+    turn angle (the median over 5 deg sectors) and 8 points more. Streaks within one
+    diameter (plus a step) of each other in turn angle and 1.5 radial sigmas in
+    distance form a column; a column is a stem as in :func:`find_stems` (it holds one of
+    the two lowest slices and goes on up, at most one slice missing at a time, for
+    ``min_slices`` or more) that leans under ``BEAM_STEM_MAX_LEAN_DEG`` radially and
+    round the axis (least squares over its slices). Its diameter is the median over the
+    column of :func:`_streak_diameter`. None is added within half the width of a stem
+    the slices found whose ring was resolved or which stands on the axis; one within a
+    noisy column off the axis replaces it (:func:`with_beam_stems`).
+
+    Needs beams in planes through the axis (:func:`_turn_geometry`); returns none
+    otherwise, or without noise on every point.
+
+    Args:
+        points: (n, 3) float64 metres, turntable frame.
+        noise: (n, 3) float64, each point's beam direction times its range noise's sigma.
+        base_z, scale, max_diameter_m, n_slices, min_slices: as :func:`find_stems`.
+        stems: the stems :func:`find_stems` found.
+
+    Returns:
+        StemBase per stem found (``found_in_beams`` True), sorted by x then y.
+    """
+    geo = _turn_geometry(points, noise)
+    if geo is None:
+        return ()
+    thickness = max(BEAM_STEM_SLICE_VOXELS * scale.voxel_m, 0.003)
+    outside = geo.rho > _BEAM_STEM_AXIS_SIGMAS * geo.sigma_r
+    max_arc = min(max_diameter_m, 2.0 * geo.sigma_r)
+    step_deg = math.degrees(geo.step)
+    streaks: list[_Streak] = []
+    for k in range(1, n_slices + 1):
+        z0 = base_z + k * thickness
+        s = np.flatnonzero(outside & (points[:, 2] >= z0) & (points[:, 2] < z0 + thickness))
+        if len(s) < _BEAM_STEM_MIN_POINTS:
+            continue
+        deg = np.degrees(geo.azimuth[s])
+        background = float(np.median(np.histogram(deg, bins=72, range=(-180.0, 180.0))[0])) / 5.0
+        order = np.argsort(deg)
+        s, deg = s[order], deg[order]
+        # Start the circle at its widest gap, so no group is cut at +-180 deg.
+        cut = int(np.argmax(np.diff(np.r_[deg, deg[0] + 360.0]))) + 1
+        s, deg = np.r_[s[cut:], s[:cut]], np.r_[deg[cut:], deg[:cut] + 360.0]
+        for g in np.split(np.arange(len(s)), np.flatnonzero(np.diff(deg) > 2.5 * step_deg) + 1):
+            if len(g) < _BEAM_STEM_MIN_POINTS:
+                continue
+            idx = s[g]
+            rho = float(np.median(geo.rho[idx]))
+            width_deg = float(np.percentile(deg[g], 95) - np.percentile(deg[g], 5))
+            arc = math.radians(width_deg + step_deg) * rho
+            spread = float(np.std(geo.rho[idx]))
+            expected = float(np.sqrt(np.mean(geo.radial_sigma[idx] ** 2)))
+            dense = _BEAM_STEM_BACKGROUND_TIMES * background * (width_deg + step_deg) + _BEAM_STEM_MIN_POINTS
+            if arc <= max_arc and spread <= _BEAM_STEM_MAX_SPREAD * expected + 0.25 * arc and len(g) >= dense:
+                streaks.append(_Streak(k, math.radians(float(np.median(deg[g]))), rho,
+                                       _streak_diameter(geo.azimuth[idx], rho, geo.step), len(g)))
+    found: list[StemBase] = []
+    used = np.zeros(len(streaks), dtype=bool)
+    for i, seed in enumerate(streaks):
+        if used[i]:
+            continue
+        column = {seed.slice_index: i}
+        for j, f in enumerate(streaks):
+            if used[j] or f.slice_index in column:
+                continue
+            apart = abs(float(_turn_offset(np.array(f.azimuth), seed.azimuth))) * seed.rho
+            if (apart <= max(seed.diameter_m, f.diameter_m) + geo.step * seed.rho
+                    and abs(f.rho - seed.rho) <= 1.5 * geo.sigma_r):
+                column[f.slice_index] = j
+        slices = sorted(column)
+        run = 1
+        while run < len(slices) and slices[run] - slices[run - 1] <= 2:
+            run += 1
+        if run < min_slices or slices[0] > 2:
+            continue
+        members = [streaks[column[k]] for k in slices[:run]]
+        used[[column[k] for k in slices[:run]]] = True
+        # A stem stands nearly upright; a leaf rising beside the axis leans out of the
+        # slices' streaks by its own slope.
+        z = np.array([m.slice_index for m in members], dtype=np.float64) * thickness
+        rho_of = np.array([m.rho for m in members])
+        across = _turn_offset(np.array([m.azimuth for m in members]), seed.azimuth) * seed.rho
+        if max(abs(float(np.polyfit(z, rho_of, 1)[0])), abs(float(np.polyfit(z, across, 1)[0]))) > math.tan(
+                math.radians(BEAM_STEM_MAX_LEAN_DEG)):
+            continue
+        azimuth = math.atan2(float(np.median([math.sin(m.azimuth) for m in members])),
+                             float(np.median([math.cos(m.azimuth) for m in members])))
+        rho = float(np.median([m.rho for m in members]))
+        centre = (rho * math.cos(azimuth), rho * math.sin(azimuth))
+        if any(math.hypot(centre[0] - st.center_xy_m[0], centre[1] - st.center_xy_m[1]) <= 0.5 * st.diameter_m
+               and (st.diameter_resolved or _on_axis(st)) for st in stems):
+            continue
+        found.append(StemBase(center_xy_m=centre, diameter_m=float(np.median([m.diameter_m for m in members])),
+                              rms_residual_m=math.nan, n_slices=run,
+                              n_points=int(sum(m.n_points for m in members)), found_in_beams=True))
+    found.sort(key=lambda st: st.center_xy_m)
+    return tuple(found)
+
+
+class BeamStemTrack(typing.NamedTuple):
+    """A stem found in the turn angles (:func:`find_beam_stems`), followed up the plant
+    (:func:`track_beam_stem`).
+
+    Attributes:
+        z_m: (k,) float64, the lower edge of each slice the stem's streak was found in,
+            metres, ascending.
+        azimuth_lo, azimuth_hi: (k,) float64 rad, the turn angles its streak spans there
+            (unwrapped: ``azimuth_lo <= azimuth_hi``).
+        rho_m: (k,) float64 metres, its distance from the axis there (its points' median).
+        slice_m: the slices' thickness, metres.
+        top_z_m: its top, metres: the highest of its points in its last slice.
+    """
+
+    z_m: np.ndarray
+    azimuth_lo: np.ndarray
+    azimuth_hi: np.ndarray
+    rho_m: np.ndarray
+    slice_m: float
+    top_z_m: float
+
+    def axis_track(self) -> np.ndarray:
+        """(k, 3): z (slice middles), x, y of its axis, as the skeleton's walk tracks one."""
+        mid = 0.5 * (self.azimuth_lo + self.azimuth_hi)
+        return np.column_stack([self.z_m + 0.5 * self.slice_m, self.rho_m * np.cos(mid),
+                                self.rho_m * np.sin(mid)])
+
+
+def _in_band(geo: _TurnGeometry, rows: np.ndarray, rho: float) -> np.ndarray:
+    """Of ``rows``, those whose distance from the axis is within BEAM_STEM_RADIAL_SIGMAS of
+    their own radial noise of ``rho``: where a stem that far out puts its points."""
+    return rows[np.abs(geo.rho[rows] - rho) <= BEAM_STEM_RADIAL_SIGMAS * geo.radial_sigma[rows]]
+
+
+def _streak_run(geo: _TurnGeometry, rows: np.ndarray, azimuth: float, core: float) -> tuple[float, float]:
+    """The run of scanned turn angles round ``azimuth`` that hold a point of ``rows``, as
+    (lo, hi) offsets from it, rad: the steps within ``core`` of it, and on out either side
+    to the first step that holds none."""
+    steps = set(np.round(_turn_offset(geo.azimuth[rows], azimuth) / geo.step).astype(np.int64).tolist())
+    reach = max(0, int(math.floor(core / geo.step)))
+    lo, hi = -reach, reach
+    while lo - 1 in steps:
+        lo -= 1
+    while hi + 1 in steps:
+        hi += 1
+    return (lo - 0.5) * geo.step, (hi + 0.5) * geo.step
+
+
+def track_beam_stem(points: np.ndarray, noise: np.ndarray, stem: StemBase, *, base_z: float,
+                    slice_m: float) -> BeamStemTrack | None:
+    """Follow a stem found in the turn angles (:func:`find_beam_stems`) up the plant,
+    slice by slice, to its top.
+
+    In each slice ``slice_m`` thick, from the base up, the candidates are the points
+    beyond the axis's noise disc whose distance from the axis lies within 3 standard
+    deviations of their own radial noise of the stem's. Its core is those within
+    half its diameter and a scanned step (``core``) of its turn angle; the slice holds
+    the stem when the core holds 8 points or more. Its turn angle then moves to the
+    core's median (by at most a step a slice: a stem leans slowly, and a leaf crossing
+    the slice beside it must not carry it off), its distance to the core's median
+    distance (by at most a radial sigma). Its streak there, whose points are the
+    stem's, is the run of scanned turn angles holding candidates out from the core to
+    an empty step each side (a wheat's ear, wider than its culm, is the culm's top),
+    or the core alone where the run spans more than twice the core (a leaf crossing).
+    Three slices in a row without it end it; its top is the highest of its points in
+    the last slice that held it.
+
+    Returns:
+        The track, or None when the beams do not lie in planes through the axis or no
+        slice holds the stem.
+    """
+    geo = _turn_geometry(points, noise)
+    if geo is None:
+        return None
+    azimuth = math.atan2(stem.center_xy_m[1], stem.center_xy_m[0])
+    rho = math.hypot(*stem.center_xy_m)
+    outside = np.flatnonzero(geo.rho > _BEAM_STEM_AXIS_SIGMAS * geo.sigma_r)
+    order = outside[np.argsort(points[outside, 2], kind="stable")]
+    z_sorted = points[order, 2]
+    rows: list[tuple[float, float, float, float]] = []
+    top = math.nan
+    misses, k = 0, 0
+    while misses < _BEAM_STEM_MAX_MISSES and base_z + k * slice_m <= z_sorted[-1]:
+        z0 = base_z + k * slice_m
+        k += 1
+        sl = _in_band(geo, order[np.searchsorted(z_sorted, z0):np.searchsorted(z_sorted, z0 + slice_m)], rho)
+        core = (0.5 * stem.diameter_m + geo.step * rho) / max(rho, 1e-9)
+        offset = _turn_offset(geo.azimuth[sl], azimuth)
+        in_core = np.abs(offset) <= core
+        if int(in_core.sum()) < _BEAM_STEM_MIN_POINTS:
+            misses += 1
+            continue
+        misses = 0
+        lo, hi = _streak_run(geo, sl, azimuth, core)
+        if hi - lo > 4.0 * core:
+            lo, hi = -core, core
+        own = sl[(offset >= lo) & (offset <= hi)]
+        rows.append((z0, azimuth + lo, azimuth + hi, rho))
+        top = float(points[own, 2].max())
+        azimuth += float(np.clip(np.median(offset[in_core]), -geo.step, geo.step))
+        rho += float(np.clip(float(np.median(geo.rho[sl[in_core]])) - rho, -geo.sigma_r, geo.sigma_r))
+    if not rows:
+        return None
+    z, lo, hi, r = (np.array(c, dtype=np.float64) for c in zip(*rows))
+    return BeamStemTrack(z, lo, hi, r, slice_m, top)
+
+
+def on_beam_stem(points: np.ndarray, noise: np.ndarray, track: BeamStemTrack, *,
+                 axis_stem: bool = False) -> np.ndarray:
+    """(n,) bool: the points of a tracked stem (:func:`track_beam_stem`): in a slice that
+    held it, up to its top, within the turn angles its streak spans there and 3
+    standard deviations of their own radial noise of its distance from the axis. With a
+    stem on the axis (``axis_stem``), whose noise spreads its points out along the same
+    beams, a point nearer the axis than half the stem's distance is the axis stem's: the
+    likelier of the two under the same noise."""
+    k = np.searchsorted(track.z_m, points[:, 2], side="right") - 1
+    ok = (k >= 0) & (points[:, 2] <= track.top_z_m)
+    k = np.clip(k, 0, len(track.z_m) - 1)
+    ok &= points[:, 2] < track.z_m[k] + track.slice_m
+    mid = 0.5 * (track.azimuth_lo + track.azimuth_hi)[k]
+    phi = mid + _turn_offset(np.arctan2(points[:, 1], points[:, 0]), mid)
+    ok &= (phi >= track.azimuth_lo[k]) & (phi <= track.azimuth_hi[k])
+    phi_pts = np.arctan2(points[:, 1], points[:, 0])
+    radial = np.abs(noise[:, 0] * np.cos(phi_pts) + noise[:, 1] * np.sin(phi_pts))
+    rho = np.hypot(points[:, 0], points[:, 1])
+    ok &= np.abs(rho - track.rho_m[k]) <= BEAM_STEM_RADIAL_SIGMAS * radial
+    if axis_stem:
+        ok &= rho > 0.5 * track.rho_m[k]
+    return ok
+
+
+# --------------------------------------------------------------------------
 # skeleton and organs
 # --------------------------------------------------------------------------
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -905,7 +1280,8 @@ def _out_of_column(point: np.ndarray, stem: StemBase, track: np.ndarray, margin:
 
 def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.ndarray,
                         stems: tuple[StemBase, ...], tracks: list[np.ndarray], *,
-                        margin: float, link: float, tops_z: list[float] | None = None
+                        margin: float, link: float, tops_z: list[float] | None = None,
+                        on_track: list[np.ndarray | None] | None = None
                         ) -> tuple[np.ndarray, np.ndarray]:
     """Give the points of stem pieces that lie off the stem to the nearest leaf.
 
@@ -915,7 +1291,8 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
     interpolated in z; held constant beyond the ends), and only points within its column
     (:func:`_column_radius`; ``margin``: the noise band and a voxel), and below ``tops_z``
     (per stem, NaN for none: where the beams say it ends, :func:`beam_stem_top`), stay
-    stem; the others take
+    stem; a stem found in the turn angles keeps its track's points (``on_track``, per
+    stem a mask or None: :func:`on_beam_stem`) and no others. The others take
     the label of their nearest leaf point when it lies within ``link`` (the graph's
     link widened by the noise band of both surfaces, ``2 link + 8 noise``), else no
     label (one k-d tree query, no loop over points).
@@ -925,6 +1302,9 @@ def _release_leaf_bases(pts: np.ndarray, stem_label: np.ndarray, leaf_label: np.
     for si, st in enumerate(stems):
         m = np.flatnonzero(stem_label == si)
         if len(m) == 0:
+            continue
+        if on_track is not None and on_track[si] is not None:
+            off[m[~on_track[si][m]]] = True
             continue
         axis_xy = _axis_xy_at(tracks[si], pts[m, 2])
         r = np.hypot(*(pts[m, :2] - axis_xy).T)
@@ -1869,6 +2249,18 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     pts = raw[kept]
     noise = None if noise is None or not np.any(noise != 0) else noise[kept]
     stems = find_stems(pts, base_z=s.base_z, scale=scale, max_diameter_m=s.max_stem_diameter_m)
+    # Stems beside the axis that the range noise hides from the slices: in the turn angles.
+    beam_tracks: dict[tuple[float, float], BeamStemTrack] = {}
+    if noise is not None:
+        beside = []
+        for st in find_beam_stems(pts, noise, base_z=s.base_z, scale=scale,
+                                  max_diameter_m=s.max_stem_diameter_m, stems=stems):
+            track = track_beam_stem(pts, noise, st, base_z=s.base_z, slice_m=BEAM_STEM_SLICE_VOXELS * scale.voxel_m)
+            if track is not None:
+                beam_tracks[st.center_xy_m] = track
+                beside.append(st)
+        stems = with_beam_stems(stems, tuple(beside))
+    tracks = [beam_tracks.get(st.center_xy_m) if st.found_in_beams else None for st in stems]
     # A noisy stem on the axis ends where the beams stop meeting it (beam_stem_top), which
     # no grid changes; the walk up its noisy column goes on up the leaves rising in it.
     on_axis = [noise is not None and not st.diameter_resolved and math.hypot(*st.center_xy_m) <= 0.5 * st.diameter_m
@@ -1880,7 +2272,7 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     top, why = _stem_top_and_refusal(image)
     beam_tops = [top if axis else math.nan for axis in on_axis]
     refusals = tuple(_beam_top_refusal(st, noise is not None, axis, why) for st, axis in zip(stems, on_axis))
-    return tuple(dataclasses.replace(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image),
+    return tuple(dataclasses.replace(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image, tracks),
                                      stem_beam_top_refusals=refusals) for g in grids)
 
 
@@ -1900,9 +2292,16 @@ def _beam_top_refusal(stem: StemBase, noise_given: bool, on_axis: bool, why: str
 
 def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems: tuple[StemBase, ...],
                      s: SegmentationSettings, noise: np.ndarray | None = None,
-                     beam_tops: list[float] | None = None, image: _RangeImage | None = None) -> Segmentation:
-    """The skeleton and organs of the kept points ``pts`` on one grid (``s.grid_offset``)."""
+                     beam_tops: list[float] | None = None, image: _RangeImage | None = None,
+                     tracks: list[BeamStemTrack | None] | None = None) -> Segmentation:
+    """The skeleton and organs of the kept points ``pts`` on one grid (``s.grid_offset``);
+    ``tracks``: per stem, its track where it was found in the turn angles
+    (:func:`track_beam_stem`), else None."""
     v = scale.voxel_m
+    tracks = list(tracks) if tracks is not None else [None] * len(stems)
+    # A stem found in the turn angles is its track's points (on_beam_stem), not a walk's.
+    axis_stem = any(tr is None and _on_axis(st) for st, tr in zip(stems, tracks))
+    on_track = [None if tr is None else on_beam_stem(pts, noise, tr, axis_stem=axis_stem) for tr in tracks]
     nodes, inverse = voxel_centroids(pts, v, s.grid_offset[:3])
     graph = _graph(nodes, s.link_factor * v, spacing=scale.spacing_m)
     # Roots: nodes in the lowest slices near each stem base (or the lowest nodes).
@@ -1963,6 +2362,11 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     walk_top_z = [math.nan] * len(stems)  # where a walk went, when the beams end its stem lower
     axis_tracks: list[np.ndarray] = []  # per stem, (k, 3): z, x, y of its axis
     for si, st in enumerate(stems):
+        if tracks[si] is not None:
+            axis = tracks[si].axis_track()
+            stem_tops.append([float(axis[-1, 1]), float(axis[-1, 2]), tracks[si].top_z_m])
+            axis_tracks.append(axis)
+            continue
         c0 = np.array(st.center_xy_m)
         root_pieces = np.unique(piece[roots & (np.hypot(nodes[:, 0] - c0[0], nodes[:, 1] - c0[1])
                                                  <= st.diameter_m / 2 + 2 * v)])
@@ -2094,11 +2498,15 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     point_piece = node_piece[inverse]
     stem_label = is_stem_piece[point_piece]
     leaf_label = np.where(stem_label >= 0, -1, owner[point_piece])
+    for si, mask in enumerate(on_track):
+        if mask is not None:
+            stem_label[mask], leaf_label[mask] = si, -1
     if len(stems) and len(leaf_chains):
         stem_label, leaf_label = _release_leaf_bases(
             pts, stem_label, leaf_label, stems, axis_tracks, margin=column_margin,
             link=2 * s.link_factor * v + 8 * scale.noise_m,
-            tops_z=[top[2] if math.isfinite(walk) else math.nan for top, walk in zip(stem_tops, walk_top_z)])
+            tops_z=[top[2] if math.isfinite(walk) else math.nan for top, walk in zip(stem_tops, walk_top_z)],
+            on_track=on_track)
     midribs = [centroid[np.array(ch)] for ch in leaf_chains]
     chain_label = leaf_label
     leaf_label, midribs = _merge_split_leaves(pts, leaf_label, midribs, bin_w=bin_w)

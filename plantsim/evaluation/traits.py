@@ -191,7 +191,14 @@ class Stem:
             through the turntable's axis ended a noisy stem below the skeleton's walk
             (:func:`plantsim.evaluation.segmentation.beam_stem_top`), ``"walk"`` where
             the walk up the stem's column stopped (a trait note says why the beams did
-            not end a noisy one); ``""`` for the truth.
+            not end a noisy one), ``"turn angles"`` for a stem found in the turn angles
+            (``found_in_beams``: its track's top); ``""`` for the truth.
+        found_in_beams: True for a stem beside the turntable's axis that the range noise
+            hides from the base slices, found as a streak of its points' turn angles
+            (:func:`plantsim.evaluation.segmentation.find_beam_stems`): its diameter is
+            the scanned turn angles it spans times its distance from the axis (resolved
+            to one step there), its points and top its track's up the plant
+            (:func:`plantsim.evaluation.segmentation.track_beam_stem`).
     """
 
     index: int
@@ -202,6 +209,7 @@ class Stem:
     diameter_resolved: bool = True
     height_m: float = _NAN
     height_from: str = ""
+    found_in_beams: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1696,7 +1704,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     height = heights[0]
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points,
-                       diameter_resolved=st.diameter_resolved)
+                       diameter_resolved=st.diameter_resolved, found_in_beams=st.found_in_beams)
                   for i, st in enumerate(seg.stems))
     if not stems:
         notes.append("no stem: no compact column persists in the base slices "
@@ -1706,6 +1714,17 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
             notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: diameter "
                          f"not resolved, {1e3 * st.diameter_m:.0f} mm is the width of its noisy column in the "
                          "base slices (no ring fits), an upper bound")
+    beside = [st for st in seg.stems if st.found_in_beams]
+    if beside:
+        notes.append(f"{len(beside)} stem{'s' if len(beside) > 1 else ''} beside the turntable's axis found in "
+                     "the turn angles of their points, which the range noise hides from the base slices (it "
+                     "spreads a thin stem's points centimetres along its beams, and leaves their turn angles "
+                     "as scanned): at " + ", ".join(
+                         f"({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm, "
+                         f"{1e3 * st.diameter_m:.1f} mm wide" for st in beside)
+                     + "; each diameter is the turn angles its beams span times its distance from the axis, "
+                     "to a scanned step there, and each stem is followed up the plant by its turn angles to "
+                     "its top (segmentation.find_beam_stems, track_beam_stem)")
     for si, st in enumerate(seg.stems):
         walk = seg.stem_walk_tops_z_m[si] if si < len(seg.stem_walk_tops_z_m) else _NAN
         if math.isfinite(walk):
@@ -1800,10 +1819,16 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         return tallest(stem_heights_of(grid))
 
     own_heights = stem_heights_of(seg)
+    # A stem found in the turn angles ends where its track does (segmentation.track_beam_stem):
+    # its top slice's points; the top-voxel rule on its sparse points can read a slice low.
+    for si, st in enumerate(seg.stems):
+        if st.found_in_beams:
+            own_heights[si] = float(seg.stem_tops_m[si, 2]) - s.base_z
     # The beams ended a stem where its walk's top is recorded (Segmentation.stem_walk_tops_z_m).
     walk_tops = list(seg.stem_walk_tops_z_m) + [_NAN] * (len(stems) - len(seg.stem_walk_tops_z_m))
     stems = tuple(dataclasses.replace(st, height_m=own_heights[st.index],
-                                      height_from="beams" if math.isfinite(walk_tops[st.index]) else "walk")
+                                      height_from="turn angles" if st.found_in_beams else
+                                      "beams" if math.isfinite(walk_tops[st.index]) else "walk")
                   for st in stems)
     stem_height = tallest(own_heights)
     # What every grid reads: where the walk up a stem goes on or stops depends on the
