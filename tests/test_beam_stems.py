@@ -149,3 +149,27 @@ def test_a_leaf_running_out_from_the_axis_is_no_stem():
     stems = segmentation.find_stems(pts, base_z=0.0, scale=scale, max_diameter_m=0.05)
     assert segmentation.find_beam_stems(pts, noise, base_z=0.0, scale=scale, max_diameter_m=0.05,
                                         stems=stems) == ()
+
+
+def test_a_culm_inside_the_axis_noise_disc_is_not_placed_at_its_edge():
+    # Culms 10-15 mm from the axis under 12 mm of range noise (the seed rig's wheat: 13-27
+    # mm under 16 mm) share the axis's noise disc: only their tails reach past it, a streak
+    # whose points beyond the disc read 30-40 mm out. Their own points (the streak's turn
+    # angles less those beside them) say how far out they stand: inside the disc, where
+    # they cannot be told from the axis stem's noise; no stem is placed at its edge.
+    rng = np.random.default_rng(5)
+    near = (_polar(0.015, -100.0, 0.002, 0.3), _polar(0.010, 30.0, 0.002, 0.3), _polar(0.012, 150.0, 0.002, 0.3))
+    pts, noise = _first_hits(rng, (AXIS,) + near)
+    scale = _scale(pts)
+    stems = segmentation.find_stems(pts, base_z=0.0, scale=scale, max_diameter_m=0.05)
+    assert segmentation.find_beam_stems(pts, noise, base_z=0.0, scale=scale, max_diameter_m=0.05,
+                                        stems=stems) == ()
+    # The same culms 45-60 mm out are found, each where it stands.
+    far = tuple(_polar(r, deg, 0.002, 0.3) for r, deg in ((0.045, -100.0), (0.06, 30.0), (0.05, 150.0)))
+    pts, noise = _first_hits(rng, (AXIS,) + far)
+    scale = _scale(pts)
+    stems = segmentation.find_stems(pts, base_z=0.0, scale=scale, max_diameter_m=0.05)
+    found = segmentation.find_beam_stems(pts, noise, base_z=0.0, scale=scale, max_diameter_m=0.05, stems=stems)
+    assert len(found) == 3
+    for x, y, _, _ in far:
+        assert min(math.hypot(st.center_xy_m[0] - x, st.center_xy_m[1] - y) for st in found) < 0.006

@@ -735,6 +735,17 @@ _BEAM_STEM_AXIS_SIGMAS = 2.5
 _BEAM_STEM_MIN_POINTS = 8
 _BEAM_STEM_MAX_SPREAD = 1.6
 _BEAM_STEM_BACKGROUND_TIMES = 3.0
+# A streak's distance from the axis is that of its own points: its turn angles' points
+# less those of the turn angles beside it (the noise of the stem on the axis, which fills
+# every turn angle alike), at every distance; the median of the excess. Beyond the disc
+# alone its points' median reads a stem inside it at the disc's edge: the seed rig's
+# wheat culms 13-27 mm from the axis, under 16 mm of radial noise, read 45-47 mm, and
+# their excess 15-27 mm; the procedural wheat's tillers 37-60 mm out read 37-59 mm. The
+# excess must hold this share of the streak's turn angles' points (else it is the disc's
+# noise), and the stem must stand beyond the axis's noise disc (_BEAM_STEM_AXIS_SIGMAS):
+# inside it, its noise and the axis stem's are one disc, which hides its own points from
+# the beams behind it, and the slices' stem is all that is read.
+_BEAM_STEM_MIN_EXCESS = 0.2
 # The slices a streak is looked for in, and followed up through, are this many voxels
 # thick: twice find_stems' noisy slices, as a thin stem beside the axis is met by a few
 # scanned turn angles only (a 4 mm culm 60 mm out by 4 of 1 deg), and each slice must
@@ -815,6 +826,7 @@ class _Streak(typing.NamedTuple):
     rho: float          # m, its median distance from the axis
     diameter_m: float   # the turn angles it spans times its distance (:func:`_streak_diameter`)
     n_points: int
+    width: float        # rad, the turn angles its points span (5th to 95th percentile, plus a step)
 
 
 def _streak_diameter(phi: np.ndarray, rho: float, step: float) -> float:
@@ -852,8 +864,12 @@ def find_beam_stems(points: np.ndarray, noise: np.ndarray, *, base_z: float, sca
     distance form a column; a column is a stem as in :func:`find_stems` (it holds one of
     the two lowest slices and goes on up, at most one slice missing at a time, for
     ``min_slices`` or more) that leans under ``BEAM_STEM_MAX_LEAN_DEG`` radially and
-    round the axis (least squares over its slices). Its diameter is the median over the
-    column of :func:`_streak_diameter`. None is added within half the width of a stem
+    round the axis (least squares over its slices), and stands beyond the axis's noise
+    disc: its distance is that of its own points over the base slices
+    (:func:`_streak_distance`: its turn angles' points less those beside them, an
+    excess of a fifth of them or more; a stem inside the disc shows only its tail
+    beyond it, at the disc's edge). Its diameter is the median over the column of
+    :func:`_streak_diameter`. None is added within half the width of a stem
     the slices found whose ring was resolved or which stands on the axis; one within a
     noisy column off the axis replaces it (:func:`with_beam_stems`).
 
@@ -901,7 +917,8 @@ def find_beam_stems(points: np.ndarray, noise: np.ndarray, *, base_z: float, sca
             dense = _BEAM_STEM_BACKGROUND_TIMES * background * (width_deg + step_deg) + _BEAM_STEM_MIN_POINTS
             if arc <= max_arc and spread <= _BEAM_STEM_MAX_SPREAD * expected + 0.25 * arc and len(g) >= dense:
                 streaks.append(_Streak(k, math.radians(float(np.median(deg[g]))), rho,
-                                       _streak_diameter(geo.azimuth[idx], rho, geo.step), len(g)))
+                                       _streak_diameter(geo.azimuth[idx], rho, geo.step), len(g),
+                                       math.radians(width_deg + step_deg)))
     found: list[StemBase] = []
     used = np.zeros(len(streaks), dtype=bool)
     for i, seed in enumerate(streaks):
@@ -933,16 +950,44 @@ def find_beam_stems(points: np.ndarray, noise: np.ndarray, *, base_z: float, sca
             continue
         azimuth = math.atan2(float(np.median([math.sin(m.azimuth) for m in members])),
                              float(np.median([math.cos(m.azimuth) for m in members])))
-        rho = float(np.median([m.rho for m in members]))
+        diameter = float(np.median([m.diameter_m for m in members]))
+        rho, share = _streak_distance(points, geo, azimuth, float(np.median([m.width for m in members])),
+                                      z_m=(base_z + thickness, base_z + (n_slices + 1) * thickness))
+        logger.debug("segmentation: streak at %.0f deg: %.0f mm from the axis, %.0f %% of its turn angles' "
+                     "points over their flanks'", math.degrees(azimuth), 1e3 * rho, 100 * share)
+        if share < _BEAM_STEM_MIN_EXCESS or not rho > _BEAM_STEM_AXIS_SIGMAS * geo.sigma_r:
+            continue
         centre = (rho * math.cos(azimuth), rho * math.sin(azimuth))
         if any(math.hypot(centre[0] - st.center_xy_m[0], centre[1] - st.center_xy_m[1]) <= 0.5 * st.diameter_m
                and (st.diameter_resolved or _on_axis(st)) for st in stems):
             continue
-        found.append(StemBase(center_xy_m=centre, diameter_m=float(np.median([m.diameter_m for m in members])),
+        found.append(StemBase(center_xy_m=centre, diameter_m=diameter,
                               rms_residual_m=math.nan, n_slices=run,
                               n_points=int(sum(m.n_points for m in members)), found_in_beams=True))
     found.sort(key=lambda st: st.center_xy_m)
     return tuple(found)
+
+
+def _streak_distance(points: np.ndarray, geo: _TurnGeometry, azimuth: float, width: float, *,
+                     z_m: tuple[float, float]) -> tuple[float, float]:
+    """A streak's distance from the axis, metres, and the share of its turn angles' points
+    that are its own, between heights ``z_m``: its turn angles (within half its ``width``,
+    rad, and a step of ``azimuth``) against those beside it (a step on, twice as wide:
+    their points count half), in 2 mm bins of distance; the median of the excess, clipped
+    at zero bin by bin."""
+    half = 0.5 * width + geo.step
+    rows = (points[:, 2] >= z_m[0]) & (points[:, 2] < z_m[1])
+    off = np.abs(_turn_offset(geo.azimuth[rows], azimuth))
+    dist = geo.rho[rows]
+    own = off <= half
+    beside = (off > half + geo.step) & (off <= 3.0 * half + geo.step)
+    bins = np.arange(0.0, float(dist.max(initial=0.0)) + 0.004, 0.002)
+    excess = np.clip(np.histogram(dist[own], bins)[0] - 0.5 * np.histogram(dist[beside], bins)[0], 0.0, None)
+    total = float(excess.sum())
+    if total <= 0.0:
+        return math.nan, 0.0
+    k = int(np.searchsorted(np.cumsum(excess), 0.5 * total))
+    return float(0.5 * (bins[k] + bins[k + 1])), total / max(int(own.sum()), 1)
 
 
 class BeamStemTrack(typing.NamedTuple):
@@ -2361,6 +2406,15 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
     stem_tops = []
     walk_top_z = [math.nan] * len(stems)  # where a walk went, when the beams end its stem lower
     axis_tracks: list[np.ndarray] = []  # per stem, (k, 3): z, x, y of its axis
+    # A stem found in the turn angles holds the pieces most of whose points are its
+    # track's, before any walk: the walk up a noisy stem on the axis, whose column its
+    # neighbours' noise reaches, does not go on up theirs.
+    point_piece = piece[inverse]
+    point_count = np.bincount(point_piece, minlength=n_pieces)
+    for si, mask in enumerate(on_track):
+        if mask is not None:
+            mine = np.bincount(point_piece[mask], minlength=n_pieces)
+            is_stem_piece[(is_stem_piece < 0) & (2 * mine > point_count)] = si
     for si, st in enumerate(stems):
         if tracks[si] is not None:
             axis = tracks[si].axis_track()
