@@ -121,6 +121,8 @@ def test_traits_count_and_measure_each_tiller_found_in_the_turn_angles():
         assert st.height_m == pytest.approx(h, rel=0.05)
         assert st.diameter_resolved and st.diameter_m < 0.006
     assert any("found in the turn angles" in n for n in t.notes)
+    # Each ends where its track does, never above the plant's top.
+    assert all(st.height_m <= t.height_m for st in t.stems)
 
 
 def test_without_noise_or_with_beams_off_the_axis_no_stem_is_found_in_the_turn_angles():
@@ -173,3 +175,20 @@ def test_a_culm_inside_the_axis_noise_disc_is_not_placed_at_its_edge():
     assert len(found) == 3
     for x, y, _, _ in far:
         assert min(math.hypot(st.center_xy_m[0] - x, st.center_xy_m[1] - y) for st in found) < 0.006
+
+
+def test_plantsim_traits_marks_the_stems_found_in_the_turn_angles(tmp_path, capsys):
+    # The bundled wheat scanned with the URG-04LX model: its sidecar gives the range noise,
+    # and the three tillers beside the axis are found in their turn angles.
+    from pathlib import Path
+
+    from plantsim.cli.app import main
+
+    wheat = Path(__file__).resolve().parent.parent / "assets" / "wheat.stl"
+    cloud = tmp_path / "wheat.las"
+    assert main(["scan", str(wheat), "-o", str(cloud), "--no-pictures"]) == 0
+    capsys.readouterr()
+    assert main(["traits", str(cloud)]) == 0
+    (line,) = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("stems: ")]
+    stems = line.split("; ")
+    assert len(stems) == 4 and sum(s.endswith("(in the turn angles)") for s in stems) == 3, line

@@ -175,7 +175,9 @@ def cmd_traits(args: argparse.Namespace) -> int:
             print("stems: " + "; ".join(
                 f"at ({mm(st['center_xy_m'][0])}, {mm(st['center_xy_m'][1])}) mm, "
                 f"{'<= ' if not st.get('diameter_resolved', True) else ''}{mm(st['diameter_m'], 1)} mm wide, "
-                f"{mm(st.get('height_m'))} mm tall" for st in out["stems"]))
+                f"{mm(st.get('height_m'))} mm tall"
+                # Found in its points' turn angles, the noise hiding it from the base slices.
+                + (" (in the turn angles)" if st.get("found_in_beams") else "") for st in out["stems"]))
         counts = out.get("leaf_counts_over_grids") or []
         areas = [a for a in out.get("leaf_areas_over_grids_m2") or [] if a is not None]
         if len(counts) > 1:

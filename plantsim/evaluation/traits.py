@@ -1808,9 +1808,19 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
     # top; no stem can then read taller than the plant.
+    # A stem found in the turn angles ends where its track does (segmentation.track_beam_stem):
+    # its top slice's highest point, no higher than the plant's top; the top-voxel rule on
+    # its sparse points read a 0.30 m ray-cast culm 0.14 m.
     def stem_heights_of(grid) -> list[float]:
-        return [robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points)
-                if len(sp) else _NAN for sp in (grid.points[grid.stem_label == i] for i in range(len(grid.stems)))]
+        out = []
+        for i, st in enumerate(grid.stems):
+            sp = grid.points[grid.stem_label == i]
+            if st.found_in_beams:
+                out.append(min(float(grid.stem_tops_m[i, 2]) - s.base_z, height))
+            else:
+                out.append(robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points)
+                           if len(sp) else _NAN)
+        return out
 
     def tallest(heights: list[float]) -> float:
         return max((h for h in heights if not math.isnan(h)), default=_NAN)
@@ -1819,11 +1829,6 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         return tallest(stem_heights_of(grid))
 
     own_heights = stem_heights_of(seg)
-    # A stem found in the turn angles ends where its track does (segmentation.track_beam_stem):
-    # its top slice's points; the top-voxel rule on its sparse points can read a slice low.
-    for si, st in enumerate(seg.stems):
-        if st.found_in_beams:
-            own_heights[si] = float(seg.stem_tops_m[si, 2]) - s.base_z
     # The beams ended a stem where its walk's top is recorded (Segmentation.stem_walk_tops_z_m).
     walk_tops = list(seg.stem_walk_tops_z_m) + [_NAN] * (len(stems) - len(seg.stem_walk_tops_z_m))
     stems = tuple(dataclasses.replace(st, height_m=own_heights[st.index],
