@@ -136,7 +136,8 @@ def main() -> None:
                      if unresolved else "") + "  "
                   f"stems {est.stem_count}/{len(tr['stems'])} "
                   f"diameter {_mm(est.stem_diameter_m)}/{_mm(tr['stem_diameter_m'])} mm"
-                  f"{' (unresolved: upper bound)' if any('diameter not resolved' in n for n in est.notes) else ''}, "
+                  f"{' (unresolved: upper bound)' if est.stems and not any(s.diameter_resolved for s in est.stems) else ''}"
+                  ", "
                   f"height {_mm(est.stem_height_m)}/{_mm(max(st['height_m'] for st in tr['stems']))} mm  "
                   f"{time.perf_counter() - t0:.1f} s{fitted}", flush=True)
             counts = est.leaf_counts_over_grids

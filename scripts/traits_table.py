@@ -114,8 +114,9 @@ def estimate_of(points, range_noise_m=None) -> tuple[dict, tuple[str, ...]]:
     own = [st.height_m for st in e.stems if math.isfinite(st.height_m)]
     out["shortest_stem_height_m"] = min(own) if len(own) > 1 else math.nan
     out["mean_leaf_inclination_deg"] = _nan_mean(getattr(e, "leaf_inclinations_deg", ()))
-    # A stem whose diameter the noise hides reads its noisy column's width: an upper bound.
-    out["stem_diameter_upper_bound"] = any(not st.diameter_resolved for st in e.stems)
+    # A stem whose diameter the noise hides reads its noisy column's width, an upper bound:
+    # the plant's diameter is one where no stem's diameter was read.
+    out["stem_diameter_upper_bound"] = bool(e.stems) and not any(st.diameter_resolved for st in e.stems)
     # Leaves whose width the range noise alone reads 45 % of (Leaf.width_resolved False).
     unresolved = [lf for lf in e.leaves if lf.width_resolved is False]
     out["unresolved_leaves"] = (len(unresolved), len(e.leaves),

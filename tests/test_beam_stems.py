@@ -121,7 +121,14 @@ def test_traits_count_and_measure_each_tiller_found_in_the_turn_angles():
         assert st.height_m == pytest.approx(h, rel=0.05)
         assert st.diameter_resolved and st.diameter_m < 0.006
     assert any("found in the turn angles" in n for n in t.notes)
-    # Each ends where its track does, never above the plant's top.
+    # The plant's stem diameter is the mean of the diameters read; the axis culm's noisy
+    # column (20-25 mm, an upper bound) is left out, and a note says so.
+    assert not [st for st in t.stems if not st.found_in_beams][0].diameter_resolved
+    assert t.stem_diameter_m == pytest.approx(np.mean([st.diameter_m for st in beside]))
+    assert any(n.startswith("stem diameter: ") and "left out" in n for n in t.notes)
+    # No stem reads above the plant's top: the culm on the axis, 0.32 m, read 0.324 m by
+    # its points as measured, where the plant's top, read with its points moved along
+    # their beams, is 0.317 m.
     assert all(st.height_m <= t.height_m for st in t.stems)
 
 

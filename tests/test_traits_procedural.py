@@ -330,6 +330,8 @@ def test_a_noisy_wheats_tillers_are_found_in_their_turn_angles_each_with_its_hei
     for st in est.stems:
         if st.found_in_beams:  # to a step (1 mm at 60 mm) and the beam's footprint
             assert st.diameter_resolved and st.diameter_m < 0.010
+    # The plant's diameter: theirs, not the axis culm's noisy column (47 mm; 16.7 with it).
+    assert est.stem_diameter_m < 0.010
     # Their culms no longer make leaves: every leaf found is mostly one true leaf.
     points, _ = _cloud("wheat", *REALISTIC)
     seg = traits.segment_for_traits(points, range_noise_m=_RANGE_NOISE[("wheat", *REALISTIC)])

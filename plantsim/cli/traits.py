@@ -157,8 +157,10 @@ def cmd_traits(args: argparse.Namespace) -> int:
     else:
         def f(v, scale=1.0, unit=""):
             return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v * scale:.4g}{unit}"
-        # A diameter the noise hides is the noisy column's width: shown as a bound.
-        bound = "<= " if any(not st.get("diameter_resolved", True) for st in out.get("stems", ())) else ""
+        # A diameter the noise hides is the noisy column's width: shown as a bound where no
+        # stem's diameter was read (the plant's is then the columns' mean).
+        stems_out = out.get("stems") or ()
+        bound = "<= " if stems_out and not any(st.get("diameter_resolved", True) for st in stems_out) else ""
         tallest = " (the tallest's)" if len(out.get("stems") or ()) > 1 else ""
         print(f"height {f(out['height_m'], 1e3, ' mm')}; stems {out['stem_count']}, diameter "
               f"{bound}{f(out['stem_diameter_m'], 1e3, ' mm')}, height {f(out['stem_height_m'], 1e3, ' mm')}"

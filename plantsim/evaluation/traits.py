@@ -265,7 +265,9 @@ class Leaf:
 class PlantTraits:
     """Traits of one plant; NaN where a trait could not be measured.
 
-    Aggregates: ``stem_diameter_m`` is the mean over stems; ``mean_stem_distance_m``
+    Aggregates: ``stem_diameter_m`` is the mean over the stems whose diameter is
+    resolved (a ring, or the turn angles), over all of them (an upper bound) when none
+    is: a noisy column's width is no diameter to average with one; ``mean_stem_distance_m``
     the mean over all pairs of stems; ``mean_nearest_stem_distance_m`` the mean, over
     stems, of the distance to the nearest other stem; ``leaf_width_m`` and
     ``leaf_length_m`` the largest over leaves. ``leaf_count`` counts leaves as a
@@ -1736,6 +1738,14 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                          f"{1e3 * (walk - s.base_z):.0f} mm); {from_beams} "
                          f"{'leaf' if from_beams == 1 else 'leaves'}' bases in the column read from the beams "
                          "(segmentation.beam_stem_top)")
+    # The plant's stem diameter: the stems whose diameter was read; a noisy column's width
+    # (an upper bound, tens of millimetres) only where no stem's was.
+    read = [st.diameter_m for st in stems if st.diameter_resolved]
+    stem_diameter = float(np.mean(read or [st.diameter_m for st in stems])) if stems else _NAN
+    if read and len(read) < len(stems):
+        notes.append(f"stem diameter: {1e3 * stem_diameter:.1f} mm, the mean of the {len(read)} stems whose "
+                     f"diameter was read; the {len(stems) - len(read)} whose noisy column hides it "
+                     "(its width an upper bound) left out")
     pairs, mean_pair, mean_nn = stem_distances(stems)
     leaves: list[Leaf] = []
     groups = leaf_groups_of(seg)
@@ -1807,19 +1817,21 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                      "points (across_beam_width); elsewhere from the points' spread")
     # Each stem's top by the plant height's own rule (robust_height on its points): the
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
-    # top; no stem can then read taller than the plant.
-    # A stem found in the turn angles ends where its track does (segmentation.track_beam_stem):
-    # its top slice's highest point, no higher than the plant's top; the top-voxel rule on
-    # its sparse points read a 0.30 m ray-cast culm 0.14 m.
+    # top. A stem found in the turn angles ends where its track does
+    # (segmentation.track_beam_stem): its top slice's highest point; the top-voxel rule on
+    # its sparse points read a 0.30 m ray-cast culm 0.14 m. No stem reads taller than the
+    # plant: its points as measured, where the plant's top is read with its points moved
+    # along their beams, read a ray-cast 0.32 m culm on the axis 0.324 m for a plant 0.317 m.
     def stem_heights_of(grid) -> list[float]:
         out = []
         for i, st in enumerate(grid.stems):
             sp = grid.points[grid.stem_label == i]
             if st.found_in_beams:
-                out.append(min(float(grid.stem_tops_m[i, 2]) - s.base_z, height))
+                top = float(grid.stem_tops_m[i, 2]) - s.base_z
             else:
-                out.append(robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points)
-                           if len(sp) else _NAN)
+                top = robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points) \
+                    if len(sp) else _NAN
+            out.append(min(top, height) if math.isfinite(top) else top)
         return out
 
     def tallest(heights: list[float]) -> float:
@@ -1862,7 +1874,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     return PlantTraits(
         height_m=height,
         stems=stems,
-        stem_diameter_m=float(np.mean([st.diameter_m for st in stems])) if stems else _NAN,
+        stem_diameter_m=stem_diameter,
         stem_distances=pairs,
         mean_stem_distance_m=mean_pair,
         mean_nearest_stem_distance_m=mean_nn,
