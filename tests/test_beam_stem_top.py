@@ -12,40 +12,16 @@ import re
 import numpy as np
 import pytest
 
+from conftest import turntable_first_hits
 from plantsim.evaluation import segmentation, traits
 
 
 def _first_hits(rng, *, stem_r=0.007, stem_h=0.3, sigma=0.012, beside_m=0.0, plates=(), n_angles=360,
                 lidar=(0.35, 0.15), elev_deg=(-25.0, 50.0, 0.35)):
-    """The first hits of a vertical fan (beams every ``elev_deg[2]`` degrees) from a LiDAR
-    ``lidar[0]`` out and ``lidar[1]`` up, ``beside_m`` to the side of the axis, at every
-    turntable angle, on a cylinder on the axis (radius ``stem_r``, from 0 to ``stem_h``)
-    and on plates (origin, edge, edge); each moved along its beam by N(0, sigma), and each
-    point's noise vector (beam direction times sigma)."""
-    theta = np.radians(np.arange(n_angles) * 360.0 / n_angles)
-    alpha = np.radians(np.arange(*elev_deg))
-    th, al = (g.ravel() for g in np.meshgrid(theta, alpha, indexing="ij"))
-    c, s = np.cos(-th), np.sin(-th)  # the plant turns by theta: the sensor by -theta
-    sensor = np.column_stack([lidar[0] * c - beside_m * s, lidar[0] * s + beside_m * c, np.full_like(th, lidar[1])])
-    d = np.column_stack([-np.cos(al) * c, -np.cos(al) * s, np.sin(al)])
-    a = d[:, 0] ** 2 + d[:, 1] ** 2
-    b = 2 * (sensor[:, 0] * d[:, 0] + sensor[:, 1] * d[:, 1])
-    disc = b * b - 4 * a * (sensor[:, 0] ** 2 + sensor[:, 1] ** 2 - stem_r ** 2)
-    t = np.where(disc >= 0, (-b - np.sqrt(np.maximum(disc, 0.0))) / (2 * a), np.inf)
-    z = sensor[:, 2] + t * d[:, 2]
-    t_first = np.where((z >= 0) & (z <= stem_h) & (t > 0), t, np.inf)
-    for origin, e1, e2 in plates:
-        origin, e1, e2 = (np.asarray(v, dtype=np.float64) for v in (origin, e1, e2))
-        n = np.cross(e1, e2)
-        denom = d @ n
-        t = ((origin - sensor) @ n) / np.where(np.abs(denom) > 1e-12, denom, np.nan)
-        q = sensor + t[:, None] * d - origin
-        u, v = np.linalg.solve(np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]]), np.vstack([q @ e1, q @ e2]))
-        on = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1) & (t > 0)
-        t_first = np.minimum(t_first, np.where(on, t, np.inf))
-    hit = np.isfinite(t_first)
-    rng_m = t_first[hit] + rng.normal(0.0, sigma, hit.sum())
-    return sensor[hit] + rng_m[:, None] * d[hit], sigma * d[hit]
+    """The first hits (:func:`conftest.turntable_first_hits`) on a cylinder on the axis
+    (radius ``stem_r``, from 0 to ``stem_h``) and on plates; points and noise vectors."""
+    return turntable_first_hits(rng, [(0.0, 0.0, stem_r, stem_h)], plates=plates, sigma=sigma, n_angles=n_angles,
+                                lidar=lidar, beside_m=beside_m, elev_deg=elev_deg)
 
 
 # A leaf leaving a 0.3 m stem near its top and rising steeply beside the axis, one

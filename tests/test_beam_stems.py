@@ -14,49 +14,8 @@ import math
 import numpy as np
 import pytest
 
+from conftest import turntable_first_hits as _first_hits
 from plantsim.evaluation import segmentation, traits
-
-
-def _first_hits(rng, cylinders, *, plates=(), sigma=0.012, n_angles=360, lidar=(0.35, 0.15), beside_m=0.0,
-                elev_deg=(-25.0, 50.0, 0.35), which=False):
-    """First hits of a vertical fan from a LiDAR ``lidar[0]`` out and ``lidar[1]`` up
-    (``beside_m`` to the side of the axis) at every turntable angle, on vertical
-    cylinders (x, y, radius, height; from z = 0) and plates (origin, edge, edge); each
-    moved along its beam by N(0, sigma). Returns points and noise vectors, and with
-    ``which=True`` also each point's object (cylinders from 0, then plates)."""
-    theta = np.radians(np.arange(n_angles) * 360.0 / n_angles)
-    alpha = np.radians(np.arange(*elev_deg))
-    th, al = (g.ravel() for g in np.meshgrid(theta, alpha, indexing="ij"))
-    c, s = np.cos(-th), np.sin(-th)  # the plant turns by theta: the sensor by -theta
-    sensor = np.column_stack([lidar[0] * c - beside_m * s, lidar[0] * s + beside_m * c, np.full_like(th, lidar[1])])
-    d = np.column_stack([-np.cos(al) * c, -np.cos(al) * s, np.sin(al)])
-    t_first = np.full(len(th), np.inf)
-    obj = np.full(len(th), -1)
-    for i, (x, y, r, h) in enumerate(cylinders):
-        ox, oy = sensor[:, 0] - x, sensor[:, 1] - y
-        a = d[:, 0] ** 2 + d[:, 1] ** 2
-        b = 2 * (ox * d[:, 0] + oy * d[:, 1])
-        disc = b * b - 4 * a * (ox ** 2 + oy ** 2 - r ** 2)
-        t = np.where(disc >= 0, (-b - np.sqrt(np.maximum(disc, 0.0))) / (2 * a), np.inf)
-        z = sensor[:, 2] + t * d[:, 2]
-        t = np.where((z >= 0) & (z <= h) & (t > 0), t, np.inf)
-        obj[t < t_first] = i
-        t_first = np.minimum(t_first, t)
-    for j, (origin, e1, e2) in enumerate(plates):
-        origin, e1, e2 = (np.asarray(v, dtype=np.float64) for v in (origin, e1, e2))
-        n = np.cross(e1, e2)
-        denom = d @ n
-        t = ((origin - sensor) @ n) / np.where(np.abs(denom) > 1e-12, denom, np.nan)
-        q = sensor + t[:, None] * d - origin
-        u, v = np.linalg.solve(np.array([[e1 @ e1, e1 @ e2], [e1 @ e2, e2 @ e2]]), np.vstack([q @ e1, q @ e2]))
-        on = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1) & (t > 0)
-        t = np.where(on, t, np.inf)
-        obj[t < t_first] = len(cylinders) + j
-        t_first = np.minimum(t_first, t)
-    hit = np.isfinite(t_first)
-    rng_m = t_first[hit] + rng.normal(0.0, sigma, hit.sum())
-    out = sensor[hit] + rng_m[:, None] * d[hit], sigma * d[hit]
-    return out + (obj[hit],) if which else out
 
 
 def _polar(rho, deg, r, h):

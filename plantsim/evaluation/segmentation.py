@@ -515,6 +515,16 @@ def _ring_residual(fit) -> bool:
     return fit.rms_residual <= 0.25 * fit.radius
 
 
+def _rising_run(slices: list[int], min_slices: int) -> int:
+    """How many of a column's base slices (their indices, ascending, from 1) make a stem
+    rising from the base: it holds one of the two lowest and goes on up, at most one slice
+    missing at a time, for ``min_slices`` or more; 0 when it does not."""
+    run = 1
+    while run < len(slices) and slices[run] - slices[run - 1] <= 2:
+        run += 1
+    return run if run >= min_slices and slices[0] <= 2 else 0
+
+
 def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diameter_m: float,
                n_slices: int = 6, min_slices: int = 3) -> tuple[StemBase, ...]:
     """Stems found from the base up: compact clusters that persist over thin slices.
@@ -622,10 +632,8 @@ def find_stems(points: np.ndarray, *, base_z: float, scale: CloudScale, max_diam
         # column too, but only from the crown's top up; leaf bands stacked higher
         # are not the column it starts.
         slices = sorted(nearest)
-        run = 1
-        while run < len(slices) and slices[run] - slices[run - 1] <= 2:
-            run += 1
-        if run < min_slices or slices[0] > 2:
+        run = _rising_run(slices, min_slices)
+        if not run:
             continue
         nearest = {k: nearest[k] for k in slices[:run]}
         slices = set(nearest)
@@ -933,10 +941,8 @@ def find_beam_stems(points: np.ndarray, noise: np.ndarray, *, base_z: float, sca
                     and abs(f.rho - seed.rho) <= 1.5 * geo.sigma_r):
                 column[f.slice_index] = j
         slices = sorted(column)
-        run = 1
-        while run < len(slices) and slices[run] - slices[run - 1] <= 2:
-            run += 1
-        if run < min_slices or slices[0] > 2:
+        run = _rising_run(slices, min_slices)
+        if not run:
             continue
         members = [streaks[column[k]] for k in slices[:run]]
         used[[column[k] for k in slices[:run]]] = True
