@@ -2312,6 +2312,10 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
                 beside.append(st)
         stems = with_beam_stems(stems, tuple(beside))
     tracks = [beam_tracks.get(st.center_xy_m) if st.found_in_beams else None for st in stems]
+    # A stem found in the turn angles is its track's points (on_beam_stem), not a walk's;
+    # no grid changes them.
+    axis_stem = any(tr is None and _on_axis(st) for st, tr in zip(stems, tracks))
+    on_track = [None if tr is None else on_beam_stem(pts, noise, tr, axis_stem=axis_stem) for tr in tracks]
     # A noisy stem on the axis ends where the beams stop meeting it (beam_stem_top), which
     # no grid changes; the walk up its noisy column goes on up the leaves rising in it.
     on_axis = [noise is not None and not st.diameter_resolved and math.hypot(*st.center_xy_m) <= 0.5 * st.diameter_m
@@ -2323,8 +2327,8 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     top, why = _stem_top_and_refusal(image)
     beam_tops = [top if axis else math.nan for axis in on_axis]
     refusals = tuple(_beam_top_refusal(st, noise is not None, axis, why) for st, axis in zip(stems, on_axis))
-    return tuple(dataclasses.replace(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image, tracks),
-                                     stem_beam_top_refusals=refusals) for g in grids)
+    return tuple(dataclasses.replace(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image, tracks,
+                                                      on_track), stem_beam_top_refusals=refusals) for g in grids)
 
 
 def _beam_top_refusal(stem: StemBase, noise_given: bool, on_axis: bool, why: str) -> str:
@@ -2344,15 +2348,15 @@ def _beam_top_refusal(stem: StemBase, noise_given: bool, on_axis: bool, why: str
 def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems: tuple[StemBase, ...],
                      s: SegmentationSettings, noise: np.ndarray | None = None,
                      beam_tops: list[float] | None = None, image: _RangeImage | None = None,
-                     tracks: list[BeamStemTrack | None] | None = None) -> Segmentation:
+                     tracks: list[BeamStemTrack | None] | None = None,
+                     on_track: list[np.ndarray | None] | None = None) -> Segmentation:
     """The skeleton and organs of the kept points ``pts`` on one grid (``s.grid_offset``);
     ``tracks``: per stem, its track where it was found in the turn angles
-    (:func:`track_beam_stem`), else None."""
+    (:func:`track_beam_stem`), else None; ``on_track``: per such stem its points
+    (:func:`on_beam_stem`), else None."""
     v = scale.voxel_m
     tracks = list(tracks) if tracks is not None else [None] * len(stems)
-    # A stem found in the turn angles is its track's points (on_beam_stem), not a walk's.
-    axis_stem = any(tr is None and _on_axis(st) for st, tr in zip(stems, tracks))
-    on_track = [None if tr is None else on_beam_stem(pts, noise, tr, axis_stem=axis_stem) for tr in tracks]
+    on_track = list(on_track) if on_track is not None else [None] * len(stems)
     nodes, inverse = voxel_centroids(pts, v, s.grid_offset[:3])
     graph = _graph(nodes, s.link_factor * v, spacing=scale.spacing_m)
     # Roots: nodes in the lowest slices near each stem base (or the lowest nodes).
@@ -2554,8 +2558,6 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
             owner[p] = owner[q]
             if is_stem_piece[q] >= 0 and owner[q] < 0:
                 is_stem_piece[p] = is_stem_piece[q]
-    node_piece = piece
-    point_piece = node_piece[inverse]
     stem_label = is_stem_piece[point_piece]
     leaf_label = np.where(stem_label >= 0, -1, owner[point_piece])
     for si, mask in enumerate(on_track):
