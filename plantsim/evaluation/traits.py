@@ -1825,10 +1825,10 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     def stem_heights_of(grid) -> list[float]:
         out = []
         for i, st in enumerate(grid.stems):
-            sp = grid.points[grid.stem_label == i]
             if st.found_in_beams:
                 top = float(grid.stem_tops_m[i, 2]) - s.base_z
             else:
+                sp = grid.points[grid.stem_label == i]
                 top = robust_height(sp, base_z=s.base_z, scale=grid.scale, min_points=top_min_points) \
                     if len(sp) else _NAN
             out.append(min(top, height) if math.isfinite(top) else top)
