@@ -1776,6 +1776,11 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                      "the turntable's axis: the noise moves each point along its beam, in a plane through the "
                      "axis, and leaves its azimuth; beyond the noise's disc round the axis their points fall "
                      "into sectors parted by empty ones, each as long as a leaf (segmentation._split_at_axis)")
+    if seg.petal_split_leaves:
+        n = seg.petal_split_leaves
+        notes.append(f"{n} lea{'ves' if n > 1 else 'f'} found by splitting a cup of touching leaves round the "
+                     "axis at their tips: where the level sets held them as one, the farthest reach of its "
+                     "points round the axis had a lobe per leaf (segmentation._split_petals)")
     ramped = sum(1 for lm in measures if lm.junction_widths_ramped)
     if ramped:
         notes.append(f"{ramped} lea{'ves' if ramped > 1 else 'f'}' widths within "
