@@ -2110,6 +2110,24 @@ def _sector_owner(phi_part: np.ndarray, phi_others: np.ndarray, label_others: np
     return int(np.bincount(label_others[inside]).argmax())
 
 
+def _apply_split(leaf_label: np.ndarray, midribs: list[np.ndarray], groups: list[int],
+                 base_widths: dict[int, np.ndarray], li: int, member: np.ndarray, part: np.ndarray,
+                 owner: np.ndarray, new: np.ndarray, ribs: list[np.ndarray]) -> int:
+    """Split leaf ``li`` in place (steps 10 and 11): its points ``member`` by ``part``;
+    the parts with an ``owner`` go to that leaf, the parts ``new`` (with midribs
+    ``ribs``) are leaves, the first keeping ``li``, each other a new leaf of its own. The
+    merged leaf's base widths were not its parts': they go. Returns the leaves added."""
+    for k in np.flatnonzero(owner >= 0):
+        leaf_label[member[part == k]] = owner[k]
+    midribs[li] = ribs[0]
+    base_widths.pop(li, None)
+    for k, rib in zip(new[1:], ribs[1:]):
+        leaf_label[member[part == k]] = len(midribs)
+        midribs.append(rib)
+        groups.append(max(groups) + 1)
+    return len(new) - 1
+
+
 def _split_at_axis(pts: np.ndarray, noise: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray],
                    groups: tuple[int, ...], base_widths: dict[int, np.ndarray], *, cell: float,
                    bin_w: float, min_leaf: float, spacing: float,
@@ -2184,15 +2202,7 @@ def _split_at_axis(pts: np.ndarray, noise: np.ndarray, leaf_label: np.ndarray, m
             continue
         logger.debug("segmentation: leaf %d is %d leaves merged round the axis and %d pieces of others, "
                      "split by azimuth", li, len(new), n_g - len(new))
-        for k in np.flatnonzero(owner >= 0):
-            leaf_label[member[part == k]] = owner[k]
-        midribs[li] = ribs[0]
-        base_widths.pop(li, None)
-        for k, rib in zip(new[1:], ribs[1:]):
-            leaf_label[member[part == k]] = len(midribs)
-            midribs.append(rib)
-            groups.append(max(groups) + 1)
-        added += len(new) - 1
+        added += _apply_split(leaf_label, midribs, groups, base_widths, li, member, part, owner, new, ribs)
     return leaf_label, midribs, tuple(groups), base_widths, added
 
 
@@ -2371,15 +2381,7 @@ def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndar
             continue
         logger.debug("segmentation: leaf %d is a cup of %d leaves round the axis, split at its tips",
                      li, len(new))
-        for k in np.flatnonzero(owner >= 0):
-            leaf_label[member[part == k]] = owner[k]
-        midribs[li] = ribs[0]
-        base_widths.pop(li, None)
-        for k, rib in zip(new[1:], ribs[1:]):
-            leaf_label[member[part == k]] = len(midribs)
-            midribs.append(rib)
-            groups.append(max(groups) + 1)
-        added += len(new) - 1
+        added += _apply_split(leaf_label, midribs, groups, base_widths, li, member, part, owner, new, ribs)
     return leaf_label, midribs, tuple(groups), base_widths, added
 
 
