@@ -2355,14 +2355,15 @@ def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndar
             near = others[(r_all[others] >= rk.min()) & (r_all[others] <= rk.max())
                           & (pts[others, 2] >= pk[:, 2].min()) & (pts[others, 2] <= pk[:, 2].max())]
             owner[k] = _sector_owner(phi_out[part_out == k], phi_all[near], leaf_label[near])
-        new = np.flatnonzero((owner < 0) & (np.bincount(part_out, minlength=n_p) > 0))
+        size = np.bincount(part_out, minlength=n_p)
+        new = np.flatnonzero((owner < 0) & (size > 0))
         if len(new) < 2:
             continue
         # A petal grows from the cup's base, near the junction, and is a surface: as many
         # points as spacings along its reach (step 8's rule for a leaf).
         start = np.array([np.percentile(d_out[part_out == k], PETAL_START_PERCENTILE) for k in new])
-        size = np.bincount(part_out, minlength=n_p)[new]
-        petal = (start <= d_out.min() + PETAL_BASE_SHARE * prof[peaks[new]]) & (size * spacing >= prof[peaks[new]])
+        reach = prof[peaks[new]]
+        petal = (start <= d_out.min() + PETAL_BASE_SHARE * reach) & (size[new] * spacing >= reach)
         if np.count_nonzero(petal) < 2:
             continue
         centre = np.array([math.atan2(float(np.sin(phi_out[part_out == k]).sum()),
