@@ -2096,12 +2096,17 @@ def _midrib_of(points: np.ndarray, junction: np.ndarray, *, cell: float, bin_w: 
     return np.vstack([junction] + chain)
 
 
+def _mean_azimuth(phi: np.ndarray) -> float:
+    """The circular mean of azimuths, radians (round the circle, not across it)."""
+    return math.atan2(float(np.sin(phi).sum()), float(np.cos(phi).sum()))
+
+
 def _sector_owner(phi_part: np.ndarray, phi_others: np.ndarray, label_others: np.ndarray) -> int:
     """The leaf a part cut from a leaf by azimuth belongs to: the leaf holding most of
     the other leaves' points (``phi_others``, ``label_others``) in the part's sector, when
     they number :data:`AZIMUTH_PIECE_SHARE` of the part's points (``phi_part``); -1 when
     they do not (the part is a leaf of its own). Azimuths in radians."""
-    mid = math.atan2(float(np.sin(phi_part).sum()), float(np.cos(phi_part).sum()))
+    mid = _mean_azimuth(phi_part)
     dev = (phi_part - mid + math.pi) % (2 * math.pi) - math.pi
     off = (phi_others - mid + math.pi) % (2 * math.pi) - math.pi
     inside = (off >= dev.min()) & (off <= dev.max())
@@ -2366,8 +2371,7 @@ def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndar
         petal = (start <= d_out.min() + PETAL_BASE_SHARE * reach) & (size[new] * spacing >= reach)
         if np.count_nonzero(petal) < 2:
             continue
-        centre = np.array([math.atan2(float(np.sin(phi_out[part_out == k]).sum()),
-                                      float(np.cos(phi_out[part_out == k]).sum())) for k in new])
+        centre = np.array([_mean_azimuth(phi_out[part_out == k]) for k in new])
         for k, c in zip(new[~petal], centre[~petal]):
             gap = np.abs((centre[petal] - c + math.pi) % (2 * math.pi) - math.pi)
             part_out[part_out == k] = new[petal][int(np.argmin(gap))]
