@@ -139,3 +139,62 @@ def test_the_traits_say_why_the_beams_do_not_end_a_noisy_stem():
     pts_short, noise_short = _first_hits(rng, stem_h=0.04)
     note, _ = _refusal(traits.extract_traits(pts_short, range_noise_m=noise_short))
     assert re.search(r"the plant spans [1-6] slices of \d+ mm, too few", note)
+
+
+def _cup_round_a_crown(n=8, width=0.014, incl_deg=50.0, length=0.05, crown_r=0.004, crown_h=0.02):
+    """A rosette's inner leaves round its crown: ``n`` plates ``width`` wide leaving the
+    crown's surface at its top and rising outward at ``incl_deg``, edge on edge round it
+    out to ``n width / 2 pi`` from the axis (18 mm)."""
+    plates = []
+    for k in range(n):
+        a = 2.0 * math.pi * k / n
+        out, side = np.array([math.cos(a), math.sin(a), 0.0]), np.array([-math.sin(a), math.cos(a), 0.0])
+        rise = math.radians(incl_deg)
+        plates.append((crown_r * out + np.array([0.0, 0.0, crown_h]) - 0.5 * width * side, width * side,
+                       length * (math.cos(rise) * out + np.array([0.0, 0.0, math.sin(rise)]))))
+    return plates
+
+
+def _cup_top(pts, noise):
+    """cup_stem_top as segment_organs reads it: slices of half a voxel, runs of a voxel."""
+    voxel = segmentation.kept_points(pts)[1].voxel_m
+    return segmentation.cup_stem_top(pts, noise, base_z=0.0, slice_m=segmentation.CUP_SLICE_VOXELS * voxel,
+                                     run_m=segmentation.CUP_RUN_VOXELS * voxel, max_miss_m=0.001)
+
+
+@pytest.mark.parametrize("sigma", [0.005, 0.010])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_crowns_top_is_where_the_beams_meet_the_leaves_standing_round_it(seed, sigma):
+    # An 8 mm crown 20 mm tall under 5-10 mm of range noise leaves 12-19 % of its cells
+    # open (the beams passing the axis cannot end it: beam_stem_top), and the walk up
+    # its noisy column went on up the leaves standing round it (51-55 mm). Above its top the beams
+    # meet those leaves, in front of the axis in every turn angle, and farther out as
+    # they widen: the median over the turn of where each cell's beams return reads the
+    # crown's radius, then the cup's.
+    rng = np.random.default_rng(seed)
+    pts, noise = _first_hits(rng, stem_r=0.004, stem_h=0.02, sigma=sigma, plates=_cup_round_a_crown())
+    assert _cup_top(pts, noise) == pytest.approx(0.020, abs=0.004)
+    assert math.isnan(segmentation.beam_stem_top(pts, noise, base_z=0.0, slice_m=0.01, max_miss_m=0.001))
+    t = traits.extract_traits(pts, range_noise_m=noise)
+    (stem,) = t.stems
+    assert stem.height_from == "beams" and stem.height_m == pytest.approx(0.020, abs=0.004)
+    (note,) = [n for n in t.notes if "standing round it" in n]
+    assert "segmentation.cup_stem_top" in note
+    # Without the noise the beams' directions are unknown: the walk's top stands.
+    assert traits.extract_traits(pts).stems[0].height_from == "walk"
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_no_cup_is_read_where_leaves_stand_in_front_of_a_stem_in_a_few_turn_angles(seed):
+    # A maize's leaves rise beside its stem in a few turn angles: the median over the turn
+    # still reads the stem there. A stem does not double its width going up.
+    rng = np.random.default_rng(seed)
+    for kw in (dict(plates=[STEEP, SPREAD, LOW]), dict(stem_r=0.002, plates=[STEEP, LOW]), dict(plates=[]),
+               dict(stem_h=0.4, plates=_rising_leaf(0.12, 0.0) + _rising_leaf(0.25, 180.0))):
+        pts, noise = _first_hits(rng, **kw)
+        assert math.isnan(_cup_top(pts, noise)), kw
+    # A cup with no crown under it: no stem is seen in front of the axis.
+    pts, noise = _first_hits(rng, stem_r=1e-9, plates=_cup_round_a_crown())
+    assert math.isnan(_cup_top(pts, noise))
+    with pytest.raises(ValueError, match="run_m"):
+        segmentation.cup_stem_top(pts, noise, base_z=0.0, slice_m=0.002, run_m=0.0, max_miss_m=0.001)

@@ -1731,13 +1731,18 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         walk = seg.stem_walk_tops_z_m[si] if si < len(seg.stem_walk_tops_z_m) else _NAN
         if math.isfinite(walk):
             from_beams = sum(1 for w in seg.leaf_base_widths_m if len(w))
+            cup = si < len(seg.stem_tops_in_cup) and seg.stem_tops_in_cup[si]
             notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: it ends "
-                         f"where the beams through the turntable's axis stop meeting it, "
-                         f"{1e3 * (seg.stem_tops_m[si, 2] - s.base_z):.0f} mm up, and its height is read from "
-                         "its points below (the skeleton's walk up its noisy column went on to "
+                         + ("where the beams through the turntable's axis meet, all round, the leaves standing "
+                            f"round it, {1e3 * (seg.stem_tops_m[si, 2] - s.base_z):.0f} mm up, its height "
+                            if cup else
+                            "where the beams through the turntable's axis stop meeting it, "
+                            f"{1e3 * (seg.stem_tops_m[si, 2] - s.base_z):.0f} mm up, and its height is read from "
+                            "its points below ")
+                         + "(the skeleton's walk up its noisy column went on to "
                          f"{1e3 * (walk - s.base_z):.0f} mm); {from_beams} "
                          f"{'leaf' if from_beams == 1 else 'leaves'}' bases in the column read from the beams "
-                         "(segmentation.beam_stem_top)")
+                         + ("(segmentation.cup_stem_top)" if cup else "(segmentation.beam_stem_top)"))
     # The plant's stem diameter: the stems whose diameter was read; a noisy column's width
     # (an upper bound, tens of millimetres) only where no stem's was.
     read = [st.diameter_m for st in stems if st.diameter_resolved]
@@ -1824,13 +1829,17 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     # highest skeleton piece of a noisy column can be a few stray points above the plant's
     # top. A stem found in the turn angles ends where its track does
     # (segmentation.track_beam_stem): its top slice's highest point; the top-voxel rule on
-    # its sparse points read a 0.30 m ray-cast culm 0.14 m. No stem reads taller than the
-    # plant: its points as measured, where the plant's top is read with its points moved
-    # along their beams, read a ray-cast 0.32 m culm on the axis 0.324 m for a plant 0.317 m.
+    # its sparse points read a 0.30 m ray-cast culm 0.14 m. A stem the beams ended where
+    # they meet the leaves standing round it (segmentation.cup_stem_top, slices of half a
+    # voxel) ends there: the top voxel of a 20 mm crown's points read 10 mm for 18. No
+    # stem reads taller than the plant: its points as measured, where the plant's top is
+    # read with its points moved along their beams, read a ray-cast 0.32 m culm on the
+    # axis 0.324 m for a plant 0.317 m.
     def stem_heights_of(grid) -> list[float]:
         out = []
         for i, st in enumerate(grid.stems):
-            if st.found_in_beams:
+            if st.found_in_beams or (i < len(grid.stem_tops_in_cup) and grid.stem_tops_in_cup[i]
+                                     and math.isfinite(grid.stem_walk_tops_z_m[i])):
                 top = float(grid.stem_tops_m[i, 2]) - s.base_z
             else:
                 sp = grid.points[grid.stem_label == i]
