@@ -42,7 +42,7 @@ def test_the_beams_read_a_noisy_stems_top_where_a_steep_leaf_rises_above_it(seed
     top = segmentation.beam_stem_top(pts, noise, base_z=0.0, slice_m=0.01, max_miss_m=0.001)
     assert top == pytest.approx(0.30, abs=0.01)
     t = traits.extract_traits(pts, range_noise_m=noise)
-    assert not t.stems[0].diameter_resolved
+    assert t.stems[0].diameter_from == "beams"  # no ring fits: read where the beams meet it
     assert t.stem_height_m == pytest.approx(0.30, rel=0.03)
     assert t.stems[0].height_m == t.stem_height_m and t.stems[0].height_from == "beams"
     assert t.leaf_count == 2
@@ -198,3 +198,53 @@ def test_no_cup_is_read_where_leaves_stand_in_front_of_a_stem_in_a_few_turn_angl
     assert math.isnan(_cup_top(pts, noise))
     with pytest.raises(ValueError, match="run_m"):
         segmentation.cup_stem_top(pts, noise, base_z=0.0, slice_m=0.002, run_m=0.0, max_miss_m=0.001)
+
+
+def _beam_diameter(pts, noise, top_z):
+    """beam_stem_diameter as extract_traits reads it: slices of half a voxel."""
+    scale = segmentation.kept_points(pts)[1]
+    return segmentation.beam_stem_diameter(pts, noise, base_z=0.0, top_z=top_z,
+                                           slice_m=segmentation.CUP_SLICE_VOXELS * scale.voxel_m, max_miss_m=0.001)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_noisy_stems_diameter_is_read_where_the_beams_through_the_axis_meet_it(seed):
+    # Under 12 mm of range noise a 14 mm stem's slices are discs of noise 3-4 cm wide: no
+    # ring fits, and the column's width was all that was said (an upper bound). Every beam
+    # crosses the axis and returns from the stem's front, a radius in front of the axis,
+    # whatever the turn angle; leaves standing in front of it in some turn angles read
+    # farther out, and the mode over the turn leaves them out.
+    rng = np.random.default_rng(seed)
+    for stem_h, plates in ((0.3, [STEEP, SPREAD, LOW]), (0.4, _rising_leaf(0.12, 0.0) + _rising_leaf(0.25, 180.0))):
+        pts, noise = _first_hits(rng, stem_h=stem_h, plates=plates)
+        assert _beam_diameter(pts, noise, stem_h) == pytest.approx(0.014, rel=0.12)
+        t = traits.extract_traits(pts, range_noise_m=noise)
+        (stem,) = t.stems
+        assert stem.diameter_from == "beams" and stem.diameter_resolved
+        assert stem.diameter_m == pytest.approx(0.014, rel=0.12) and t.stem_diameter_m == stem.diameter_m
+        (note,) = [n for n in t.notes if "beam_stem_diameter" in n]
+        column_mm = float(re.search(r"its noisy column, (\d+) mm wide", note).group(1))
+        assert column_mm >= 25
+    # A 7 mm stem, whose cells hold a few points each.
+    pts, noise = _first_hits(rng, stem_r=0.0035, plates=[STEEP, LOW])
+    assert _beam_diameter(pts, noise, 0.3) == pytest.approx(0.007, rel=0.25)
+
+
+def test_no_diameter_is_read_where_the_beams_cannot_meet_a_stem_on_the_axis():
+    rng = np.random.default_rng(5)
+    pts, noise = _first_hits(rng, plates=[STEEP, LOW])
+    assert math.isfinite(_beam_diameter(pts, noise, 0.3))
+    # No noise given: the beams' directions are not known, and the noisy column's width
+    # is all that is said (an upper bound).
+    assert math.isnan(_beam_diameter(pts, np.zeros_like(noise), 0.3))
+    stem = traits.extract_traits(pts).stems[0]
+    assert stem.diameter_from == "column" and not stem.diameter_resolved and stem.diameter_m > 0.020
+    # A LiDAR 20 mm beside the axis: its beams miss the stem standing on it.
+    pts_beside, noise_beside = _first_hits(rng, beside_m=0.02, plates=[STEEP, LOW])
+    assert math.isnan(_beam_diameter(pts_beside, noise_beside, 0.3))
+    # No stem on the axis, only leaves round it; a top within three slices of the base.
+    pts_none, noise_none = _first_hits(rng, stem_r=1e-9, plates=_cup_round_a_crown())
+    assert math.isnan(_beam_diameter(pts_none, noise_none, 0.02))
+    assert math.isnan(_beam_diameter(pts, noise, 0.004))
+    with pytest.raises(ValueError, match="top_z"):
+        segmentation.beam_stem_diameter(pts, noise, base_z=0.0, top_z=math.nan, slice_m=0.003, max_miss_m=0.001)

@@ -405,6 +405,18 @@ def test_a_noisy_rosettes_crown_ends_where_the_beams_meet_the_leaves_standing_ro
     assert (seg.stem_label[on_leaf] >= 0).mean() <= 0.10
 
 
+@pytest.mark.parametrize("name", ["maize", "dicot", "rosette12", "maize3", "bean3"])
+def test_a_noisy_stems_diameter_is_read_from_the_beams_through_the_axis(name):
+    # Under the URG's 10-12 mm of range noise no ring fits these stems, and their noisy
+    # columns read 21-59 mm, an upper bound. The beams through the axis meet each at its
+    # front, a radius out (segmentation.beam_stem_diameter): 14.1, 7.0, 8.9, 14.1 and
+    # 6.4 mm for 14, 7, 8, 14 and 7.
+    est, truth = _scan(name, *REALISTIC)
+    (stem,) = est.stems
+    assert stem.diameter_from == "beams" and stem.diameter_resolved
+    assert _rel(stem.diameter_m, truth["stem_diameter_m"]) <= 0.15
+
+
 def test_a_noisy_maize_keeps_most_of_its_leaf_points_off_the_stem():
     # The column once reached 37 mm from the axis of a 14 mm stem (the noise band
     # added to a width that already held it): 52 % of the leaves' points were stem;

@@ -182,7 +182,15 @@ class Stem:
         rms_residual_m: circle-fit residual (NaN for truth).
         n_points: points in the slice component (0 for truth).
         diameter_resolved: False when noise hides the stem's diameter in its base
-            slices (no ring fits): ``diameter_m`` is then an upper bound.
+            slices (no ring fits) and the beams do not read it: ``diameter_m`` is then
+            an upper bound.
+        diameter_from: how the cloud's diameter was read: ``"rings"`` fitted in its
+            base slices, ``"turn angles"`` for a stem found in them (``found_in_beams``),
+            ``"beams"`` for a noisy stem on the turntable's axis read where the beams
+            through the axis meet it
+            (:func:`plantsim.evaluation.segmentation.beam_stem_diameter`), ``"column"``
+            where none could and it is the noisy column's width (an upper bound);
+            ``""`` for the truth.
         height_m: its top above the plant's base: its own points' :func:`robust_height`
             (cloud; :attr:`PlantTraits.stem_height_m` is the tallest stem's), or the
             truth's ``height_m`` (NaN: not measured, or not in the truth). A tiller's
@@ -210,6 +218,7 @@ class Stem:
     height_m: float = _NAN
     height_from: str = ""
     found_in_beams: bool = False
+    diameter_from: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1231,6 +1240,25 @@ def across_beam_width(offsets_m: Any, noise_m: Any, tangent: Any, *, own: Any = 
     return uniform_width(on_plane @ width_dir)
 
 
+def _beam_stem_diameter(seg: "segmentation.Segmentation", i: int, noise: np.ndarray | None,
+                        base_z: float) -> float:
+    """Stem ``i``'s diameter where the beams through the turntable's axis meet it
+    (:func:`plantsim.evaluation.segmentation.beam_stem_diameter`, on the segmentation's
+    points, slices of half a voxel, up to the stem's top as segmented), for a noisy stem
+    on the axis whose rings the noise hides (its centre within half its column's width
+    of the axis, as :func:`plantsim.evaluation.segmentation.segment_organs` takes it for
+    the beams' top); NaN elsewhere."""
+    from plantsim.evaluation import segmentation
+
+    st = seg.stems[i]
+    if (noise is None or not np.any(noise) or st.diameter_resolved or st.found_in_beams
+            or math.hypot(*st.center_xy_m) > 0.5 * st.diameter_m):
+        return _NAN
+    return segmentation.beam_stem_diameter(
+        seg.points, noise, base_z=base_z, top_z=float(seg.stem_tops_m[i, 2]),
+        slice_m=segmentation.CUP_SLICE_VOXELS * seg.scale.voxel_m, max_miss_m=0.25 * seg.scale.spacing_m)
+
+
 def _base_widths_of(seg: "segmentation.Segmentation", i: int) -> np.ndarray | None:
     """Leaf ``i``'s base node widths the beams read (``Segmentation.leaf_base_widths_m``), or None."""
     widths = seg.leaf_base_widths_m[i] if i < len(seg.leaf_base_widths_m) else None
@@ -1704,18 +1732,31 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
                      "top moved along their beams onto their neighbours' surface (by the range noise given; "
                      f"{1e3 * (tops_measured[0] - s.base_z):.1f} mm with the points as measured)")
     height = heights[0]
-    stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m, diameter_m=st.diameter_m,
+    # A noisy stem on the axis: its diameter where the beams through the axis meet it.
+    seg_noise = None if noise_above is None else noise_above[seg.kept]
+    from_beams = [_beam_stem_diameter(seg, i, seg_noise, s.base_z) for i in range(len(seg.stems))]
+    stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m,
+                       diameter_m=from_beams[i] if math.isfinite(from_beams[i]) else st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points,
-                       diameter_resolved=st.diameter_resolved, found_in_beams=st.found_in_beams)
+                       diameter_resolved=st.diameter_resolved or math.isfinite(from_beams[i]),
+                       found_in_beams=st.found_in_beams,
+                       diameter_from=("turn angles" if st.found_in_beams else "rings" if st.diameter_resolved
+                                      else "beams" if math.isfinite(from_beams[i]) else "column"))
                   for i, st in enumerate(seg.stems))
     if not stems:
         notes.append("no stem: no compact column persists in the base slices "
                      f"(noise {1e3 * seg.scale.noise_m:.2g} mm, spacing {1e3 * seg.scale.spacing_m:.2g} mm)")
-    for st in seg.stems:
-        if not st.diameter_resolved:
-            notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: diameter "
-                         f"not resolved, {1e3 * st.diameter_m:.0f} mm is the width of its noisy column in the "
-                         "base slices (no ring fits), an upper bound")
+    for i, st in enumerate(seg.stems):
+        at = f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm"
+        if not st.diameter_resolved and math.isfinite(from_beams[i]):
+            notes.append(f"{at}: diameter {1e3 * from_beams[i]:.1f} mm, read where the beams through the "
+                         "turntable's axis meet it, a radius in front of the axis (the mode over the turn "
+                         "of each cell's median return, up the lower half of the stem; "
+                         "segmentation.beam_stem_diameter): no ring fits its noisy column, "
+                         f"{1e3 * st.diameter_m:.0f} mm wide in the base slices")
+        elif not st.diameter_resolved:
+            notes.append(f"{at}: diameter not resolved, {1e3 * st.diameter_m:.0f} mm is the width of its noisy "
+                         "column in the base slices (no ring fits), an upper bound")
     beside = [st for st in seg.stems if st.found_in_beams]
     if beside:
         notes.append(f"{len(beside)} stem{'s' if len(beside) > 1 else ''} beside the turntable's axis found in "
@@ -1734,7 +1775,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
             cup = si < len(seg.stem_tops_in_cup) and seg.stem_tops_in_cup[si]
             notes.append(f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm: it ends "
                          + ("where the beams through the turntable's axis meet, all round, the leaves standing "
-                            f"round it, {1e3 * (seg.stem_tops_m[si, 2] - s.base_z):.0f} mm up, its height "
+                            f"round it, {1e3 * (seg.stem_tops_m[si, 2] - s.base_z):.0f} mm up, which is its height "
                             if cup else
                             "where the beams through the turntable's axis stop meeting it, "
                             f"{1e3 * (seg.stem_tops_m[si, 2] - s.base_z):.0f} mm up, and its height is read from "
