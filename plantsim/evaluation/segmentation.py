@@ -1862,10 +1862,12 @@ def cup_stem_top(points_turntable: Any, range_noise_m: Any, *, base_z: float, sl
                                          max_miss_m=max_miss_m), run_m)
 
 
-def _slice_fronts(image: "_RangeImage") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _slice_fronts(image: "_RangeImage") -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """Per slice of a range image: its front (the median over the sectors of their
     cells' median ``s``, an empty sector counting as past the axis), the front's
-    standard error, and the cells' median standard error (:func:`cup_stem_top`)."""
+    standard error, and the cells' median standard error (:func:`cup_stem_top`); and
+    the lowest slice holding points (points below a ground clearance leave the slices
+    under it empty)."""
     n, m = image.n_levels, image.n_sectors
     median = np.full(n * m, -np.inf)
     median[image.cells] = image.median_s
@@ -1882,18 +1884,16 @@ def _slice_fronts(image: "_RangeImage") -> tuple[np.ndarray, np.ndarray, np.ndar
     ok = seen > 0
     cell[ok] = np.nanmedian(cell_se[ok], axis=1)
     se[ok] = cell[ok] / np.sqrt(seen[ok])
-    return front, se, cell
+    return front, se, cell, int(image.cells[0]) // m
 
 
 def _cup_top_in(image: "_RangeImage | None", run_m: float) -> float:
     """:func:`cup_stem_top` on a range image (None: NaN)."""
     if image is None:
         return math.nan
-    n, m = image.n_levels, image.n_sectors
-    front, se, _ = _slice_fronts(image)
-    # The stem's own front: the 5 slices above its lowest seen (points below a ground
-    # clearance leave the slices under it empty).
-    lowest = int(image.cells[0]) // m
+    n = image.n_levels
+    front, se, _, lowest = _slice_fronts(image)
+    # The stem's own front: the 5 slices above its lowest seen.
     if n - lowest < 7:
         return math.nan
     own = slice(lowest + 1, lowest + 6)
@@ -1937,9 +1937,9 @@ def beam_stem_diameter(points_turntable: Any, range_noise_m: Any, *, base_z: flo
     below ``top_z``): its upper half holds the leaves' bases in front of it (the whorl).
 
     On the realistic 1-degree scans of ``scripts/traits_accuracy.py`` (slices of half a
-    voxel, the stems' tops as segmented): the maizes' 14 mm stems read 14.1-14.2 mm
-    (their noisy columns 26-41 mm wide), the dicot's and the bean's 7 mm ones 6.8 and
-    6.4 mm (a beam's footprint, 3.5 mm at 0.35 m, overhangs a thin stem's edges and
+    voxel, the stems' tops as segmented): the maizes' 14 mm stems read 14.1 mm (their
+    noisy columns 26-41 mm wide), the dicot's and the bean's 7 mm ones 7.0 and 6.4 mm
+    (a beam's footprint, 3.5 mm at 0.35 m, overhangs a thin stem's edges and
     returns a mixed range from behind), the 12-leaf rosette's 8 mm crown 8.9 mm.
 
     Validity: as :func:`beam_stem_top`'s (a stem standing on the axis, beams through
@@ -1978,8 +1978,7 @@ def _front_diameter_in(image: "_RangeImage | None", top_z: float) -> float:
     if image is None:
         return math.nan
     n, m = image.n_levels, image.n_sectors
-    front, se, cell_se = _slice_fronts(image)
-    lowest = int(image.cells[0]) // m
+    front, se, cell_se, lowest = _slice_fronts(image)
     below_top = int(math.floor((top_z - image.base_z) / image.slice_m))  # slices wholly below it
     first, k = lowest + 1, min(below_top, n) - (lowest + 1)
     if k < 3:
