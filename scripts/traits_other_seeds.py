@@ -1,0 +1,67 @@
+"""Trait errors on procedural plants the tests and the accuracy table do not use.
+
+``scripts/traits_accuracy.py`` and ``tests/test_traits_procedural.py`` read a fixed set of
+plants (one seed each). A rule tuned on them can read those right and others wrong. This
+scans other seeds and leaf counts of the same species shapes, realistic 1-degree scans by
+default (the URG-04LX model, the traits read given each point's range noise as
+``plantsim traits`` reads it from a sidecar), and prints per plant the leaf count, the leaf
+area's error and each stem's diameter, height and how each was read, against the truth.
+
+    python scripts/traits_other_seeds.py            # 7 plants, about a minute
+    python scripts/traits_other_seeds.py --ideal --step 0.5
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from plantsim.evaluation import traits
+from plantsim.evaluation.evaluate import scan_range_noise
+from plantsim.plant.mesh import plant_from_arrays
+from plantsim.plant.procedural import make_dicot, make_maize, make_rosette
+from plantsim.scan.config import RunConfig
+from plantsim.scan.pipeline import run_scan
+from plantsim.scan.schedule import StepScan
+
+# None of these is in scripts/traits_accuracy.py (rosettes seed 0-2, maize seeds 0 and 2,
+# dicot seeds 0 and 1).
+PLANTS = (
+    ("rosette, seed 3, 8 leaves", lambda: make_rosette(seed=3, n_leaves=8)),
+    ("rosette, seed 4, 16 leaves", lambda: make_rosette(seed=4, n_leaves=16)),
+    ("rosette, seed 5, 12 leaves", lambda: make_rosette(seed=5, n_leaves=12)),
+    ("rosette, seed 6, 20 leaves", lambda: make_rosette(seed=6, n_leaves=20)),
+    ("maize, seed 1", lambda: make_maize(seed=1)),
+    ("maize, seed 3, 6 leaves", lambda: make_maize(seed=3, n_leaves=6)),
+    ("dicot, seed 2", lambda: make_dicot(seed=2)),
+)
+
+
+def _mm(value: float) -> str:
+    return "none" if value != value else f"{1e3 * value:.1f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ideal", action="store_true", help="the ideal sensor instead of the URG-04LX model")
+    parser.add_argument("--step", type=float, default=1.0, help="turntable step, degrees (default 1)")
+    args = parser.parse_args()
+    logging.disable(logging.WARNING)
+    for name, make in PLANTS:
+        plant = make()
+        result = run_scan(RunConfig(ideal=args.ideal, scan=StepScan(step_deg=args.step)),
+                          plant=plant_from_arrays(plant.vertices_m, plant.faces))
+        est = traits.extract_traits(result.cloud.plant_only().points_turntable,
+                                    range_noise_m=scan_range_noise(result)[0])
+        truth = plant.traits
+        true_leaves = len(set(traits.true_leaf_groups(truth["leaves"])))
+        stems = "; ".join(f"{_mm(st.diameter_m)} mm wide ({st.diameter_from}), {_mm(st.height_m)} mm tall "
+                          f"({st.height_from})" for st in est.stems) or "none"
+        print(f"{name:28s} leaves {est.leaf_count}/{true_leaves}  "
+              f"area {100 * (est.leaf_area_m2 / truth['leaf_area_m2'] - 1):+.0f} %  "
+              f"stems {stems} (truth {_mm(truth['stem_diameter_m'])} mm wide, "
+              f"{_mm(max(st['height_m'] for st in truth['stems']))} mm tall)", flush=True)
+
+
+if __name__ == "__main__":
+    main()
