@@ -78,7 +78,7 @@ def test_traits_count_and_measure_each_tiller_found_in_the_turn_angles():
     for x, y, r, h in TILLERS:
         st = min(beside, key=lambda st: math.hypot(st.center_xy_m[0] - x, st.center_xy_m[1] - y))
         assert st.height_m == pytest.approx(h, rel=0.05)
-        assert st.diameter_resolved and st.diameter_m < 0.006
+        assert st.diameter_resolved and st.diameter_m < 0.006 and st.diameter_from == "turn angles"
     assert any("found in the turn angles" in n for n in t.notes)
     # The plant's stem diameter is the mean of the diameters read; the axis culm's noisy
     # column (20-25 mm, an upper bound) is left out, and a note says so.

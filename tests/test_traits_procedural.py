@@ -314,6 +314,7 @@ def test_stems_found_from_the_base_up_with_their_diameter():
     est, truth = _scan("maize", *IDEAL)
     assert est.stem_count == 1
     assert _rel(est.stem_diameter_m, truth["stem_diameter_m"]) <= 0.10
+    assert est.stems[0].diameter_from == "rings"
     # A rosette's crown is 2 cm tall under leaves rising steeply from its top: one
     # stem on the axis, not the leaves' columns (4 stems 15-27 mm wide before).
     for name in ("rosette12", "rosette30"):
