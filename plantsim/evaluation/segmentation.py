@@ -154,7 +154,7 @@ __all__ = [
     "CloudScale", "Segmentation", "SegmentationSettings", "StemBase", "estimate_scale",
     "BeamStemTrack", "beam_stem_diameter", "beam_stem_top", "checked_range_noise", "cup_stem_top",
     "find_beam_stems", "find_stems", "kept_points",
-    "node_frames", "on_beam_stem", "outlier_mask", "track_beam_stem", "with_beam_stems",
+    "node_frames", "on_beam_stem", "outlier_mask", "read_by_axis_beams", "track_beam_stem", "with_beam_stems",
     "segment_on_shifted_grids",
     "segment_organs", "shifted_grid_offsets", "stem_noise_points", "uniform_width", "voxel_centroids",
 ]
@@ -827,6 +827,14 @@ def _turn_offset(phi: np.ndarray, centre: float) -> np.ndarray:
 def _on_axis(stem: StemBase) -> bool:
     """Whether the turntable's axis lies within half a stem's width of its centre."""
     return math.hypot(*stem.center_xy_m) <= 0.5 * stem.diameter_m
+
+
+def read_by_axis_beams(stem: StemBase, noise_given: bool) -> bool:
+    """Whether the beams through the turntable's axis read a stem (its top,
+    :func:`beam_stem_top` and :func:`cup_stem_top`; its diameter,
+    :func:`beam_stem_diameter`): a noisy stem, whose rings the noise hides, standing on
+    the axis (within half its column's width), with each point's range noise given."""
+    return noise_given and not stem.diameter_resolved and _on_axis(stem)
 
 
 def with_beam_stems(stems: tuple[StemBase, ...], beside: tuple[StemBase, ...]) -> tuple[StemBase, ...]:
@@ -2759,8 +2767,7 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     on_track = [None if tr is None else on_beam_stem(pts, noise, tr, axis_stem=axis_stem) for tr in tracks]
     # A noisy stem on the axis ends where the beams stop meeting it (beam_stem_top), which
     # no grid changes; the walk up its noisy column goes on up the leaves rising in it.
-    on_axis = [noise is not None and not st.diameter_resolved and math.hypot(*st.center_xy_m) <= 0.5 * st.diameter_m
-               for st in stems]
+    on_axis = [read_by_axis_beams(st, noise is not None) for st in stems]
     image = None
     if any(on_axis):
         image = _axis_range_image(pts, noise, base_z=s.base_z, slice_m=2.0 * scale.voxel_m, sector_deg=3.0,

@@ -1244,15 +1244,13 @@ def _beam_stem_diameter(seg: "segmentation.Segmentation", i: int, noise: np.ndar
                         base_z: float) -> float:
     """Stem ``i``'s diameter where the beams through the turntable's axis meet it
     (:func:`plantsim.evaluation.segmentation.beam_stem_diameter`, on the segmentation's
-    points, slices of half a voxel, up to the stem's top as segmented), for a noisy stem
-    on the axis whose rings the noise hides (its centre within half its column's width
-    of the axis, as :func:`plantsim.evaluation.segmentation.segment_organs` takes it for
-    the beams' top); NaN elsewhere."""
+    points, slices of half a voxel, up to the stem's top as segmented), for the stems the
+    beams through the axis read (:func:`plantsim.evaluation.segmentation.read_by_axis_beams`,
+    as the segmentation takes them for the beams' top); NaN elsewhere."""
     from plantsim.evaluation import segmentation
 
     st = seg.stems[i]
-    if (noise is None or not np.any(noise) or st.diameter_resolved or st.found_in_beams
-            or math.hypot(*st.center_xy_m) > 0.5 * st.diameter_m):
+    if not segmentation.read_by_axis_beams(st, noise is not None and bool(np.any(noise))):
         return _NAN
     return segmentation.beam_stem_diameter(
         seg.points, noise, base_z=base_z, top_z=float(seg.stem_tops_m[i, 2]),
@@ -1734,22 +1732,22 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     height = heights[0]
     # A noisy stem on the axis: its diameter where the beams through the axis meet it.
     seg_noise = None if noise_above is None else noise_above[seg.kept]
-    from_beams = [_beam_stem_diameter(seg, i, seg_noise, s.base_z) for i in range(len(seg.stems))]
+    beam_diameters = [_beam_stem_diameter(seg, i, seg_noise, s.base_z) for i in range(len(seg.stems))]
     stems = tuple(Stem(index=i, center_xy_m=st.center_xy_m,
-                       diameter_m=from_beams[i] if math.isfinite(from_beams[i]) else st.diameter_m,
+                       diameter_m=beam_diameters[i] if math.isfinite(beam_diameters[i]) else st.diameter_m,
                        rms_residual_m=st.rms_residual_m, n_points=st.n_points,
-                       diameter_resolved=st.diameter_resolved or math.isfinite(from_beams[i]),
+                       diameter_resolved=st.diameter_resolved or math.isfinite(beam_diameters[i]),
                        found_in_beams=st.found_in_beams,
                        diameter_from=("turn angles" if st.found_in_beams else "rings" if st.diameter_resolved
-                                      else "beams" if math.isfinite(from_beams[i]) else "column"))
+                                      else "beams" if math.isfinite(beam_diameters[i]) else "column"))
                   for i, st in enumerate(seg.stems))
     if not stems:
         notes.append("no stem: no compact column persists in the base slices "
                      f"(noise {1e3 * seg.scale.noise_m:.2g} mm, spacing {1e3 * seg.scale.spacing_m:.2g} mm)")
     for i, st in enumerate(seg.stems):
         at = f"stem at ({1e3 * st.center_xy_m[0]:.0f}, {1e3 * st.center_xy_m[1]:.0f}) mm"
-        if not st.diameter_resolved and math.isfinite(from_beams[i]):
-            notes.append(f"{at}: diameter {1e3 * from_beams[i]:.1f} mm, read where the beams through the "
+        if not st.diameter_resolved and math.isfinite(beam_diameters[i]):
+            notes.append(f"{at}: diameter {1e3 * beam_diameters[i]:.1f} mm, read where the beams through the "
                          "turntable's axis meet it, a radius in front of the axis (the mode over the turn "
                          "of each cell's median return, up the lower half of the stem; "
                          "segmentation.beam_stem_diameter): no ring fits its noisy column, "
