@@ -104,6 +104,19 @@ def test_one_leaf_is_not_split_and_a_plant_without_noise_is_not_looked_at():
     assert seg.axis_split_leaves == 0
 
 
+def test_a_segmentation_carries_its_points_range_noise():
+    # The kept points above the ground clearance, rounded to a file's grid: each with the
+    # noise vector of the point it came from (what scoring its leaves against the faces
+    # their beams hit needs: organ_match.procedural_leaf_labels); none for a noiseless scan.
+    pts, noise, _, _ = _rosette(0)
+    seg = traits.segment_for_traits(pts, range_noise_m=noise)
+    source = cKDTree(traits.on_file_grid(pts)).query(seg.points)[1]
+    assert seg.range_noise_m is not None and seg.range_noise_m.shape == seg.points.shape
+    np.testing.assert_array_equal(seg.range_noise_m, noise[source])
+    assert traits.segment_for_traits(pts, range_noise_m=np.zeros_like(pts)).range_noise_m is None
+    assert traits.segment_for_traits(pts).range_noise_m is None
+
+
 def _azimuths(rng, centres_deg, counts, spread_deg):
     return np.radians(np.concatenate([rng.normal(c, spread_deg, n) for c, n in zip(centres_deg, counts)]))
 

@@ -1241,6 +1241,9 @@ class Segmentation:
         stem_tops_in_cup: per stem, whether the beams through the axis end it where
             they meet, all round, the leaves standing round it (:func:`cup_stem_top`: a
             rosette's crown), rather than where they pass the axis. Empty: none given.
+        range_noise_m: (n, 3) float64, each of ``points``' range noise vector as given
+            (``range_noise_m`` of :func:`segment_organs`, the kept points'); None when
+            none was given or it is zero.
     """
 
     points: np.ndarray
@@ -1262,6 +1265,7 @@ class Segmentation:
     petal_split_leaves: int = 0
     stem_beam_top_refusals: tuple[str, ...] = ()
     stem_tops_in_cup: tuple[bool, ...] = ()
+    range_noise_m: np.ndarray | None = None
 
 
 def _graph(nodes: np.ndarray, link: float, *, spacing: float | None = None) -> sparse.csr_matrix:
@@ -2788,7 +2792,7 @@ def segment_on_shifted_grids(points_turntable: Any, *, settings: SegmentationSet
     cups = tuple(in_cup and axis for axis in on_axis)
     return tuple(dataclasses.replace(_segment_on_grid(pts, kept, scale, stems, g, noise, beam_tops, image, tracks,
                                                       on_track), stem_beam_top_refusals=refusals,
-                                     stem_tops_in_cup=cups) for g in grids)
+                                     stem_tops_in_cup=cups, range_noise_m=noise) for g in grids)
 
 
 def _beam_top_refusal(stem: StemBase, noise_given: bool, on_axis: bool, why: str) -> str:
