@@ -8,7 +8,8 @@ ideal 0.5 deg: 2 %, 20 %, 20 %; realistic 1 deg: 5 %, 40 %, 35 %. Leaves are cou
 as a botanist counts them, a compound leaf once (the dicot's 8 trifoliate leaves), with
 the laminae (its 24 leaflets) beside them where the two differ. A second line per
 plant says how many found laminae are true laminae (IoU > 0.5 of their points, each
-point's truth the leaf of its nearest mesh face; :mod:`plantsim.evaluation.organ_match`):
+point's truth the leaf of its nearest mesh face, on a realistic scan of the face its beam
+hit; :mod:`plantsim.evaluation.organ_match`):
 a count can be right with leaves split and others merged, an area with leaf bases
 lost to the stem and noise widening the rest. A third line reads the found leaves of
 which 60 % or more of the points are one true leaf's against that leaf: the median (and
@@ -60,7 +61,7 @@ def _mm(value: float) -> str:
 
 def _leaf_by_leaf(est: "traits.PlantTraits", seg, plant) -> str:
     """The found leaves mostly (60 % or more of their points) one true leaf's, against it."""
-    truth = procedural_leaf_labels(seg.points, plant)
+    truth = procedural_leaf_labels(seg.points, plant, range_noise_m=seg.range_noise_m)
     length, width, base = [], [], []
     for lf in est.leaves:
         lab = truth[seg.leaf_label == lf.index]
@@ -157,7 +158,7 @@ def main() -> None:
                 print(f"{'':16s} {'':7s}  each stem's height: "
                       + ", ".join(f"{_mm(e.estimate)}/{_mm(e.reference)}" for e in own) + " mm", flush=True)
             seg = traits.segment_for_traits(pts, range_noise_m=noise)
-            match = match_leaves(seg.leaf_label, procedural_leaf_labels(seg.points, pl),
+            match = match_leaves(seg.leaf_label, procedural_leaf_labels(seg.points, pl, range_noise_m=seg.range_noise_m),
                                  n_true_leaves=len(pl.traits["leaves"]))
             print(f"{'':16s} {'':7s}  leaves matched: {match.summary()}", flush=True)
             print(f"{'':16s} {'':7s}  {_leaf_by_leaf(est, seg, pl)}", flush=True)
