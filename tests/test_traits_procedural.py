@@ -15,15 +15,19 @@ prints the whole table). Targets not met yet are strict ``xfail``s, so a fix tha
 reaches one turns the test red until it is promoted to a plain assertion:
 ideal rosette leaf area
 (-35 % / -57 %: most of it hidden from the default rig; the true leaves measured alone read
--37 % / -48 %, scripts/traits_area_bound.py) and 30-leaf count (21, 16-25 over the grids;
+-38 % / -49 %, scripts/traits_area_bound.py: no segmentation meets these, the reason their
+xfails give) and 30-leaf count (21, 16-25 over the grids;
 15 before its inner leaves, a cup the level sets hold as one, were split at their tips,
 segmentation._split_petals); the dicot's lamina count (ideal 19 for 24: the leaflets of
 its top leaves merge, 18 to 21 over the grids; realistic 11); realistic
 wheat area (+156 %: its leaves' widths under noise as wide as they are; +244 % before its
-tillers were found in their turn angles, their culms and ears read as leaves) and realistic
+tillers were found in their turn angles, their culms and ears read as leaves; its true
+leaves measured alone, each point labelled by the face its beam hit, read +174 %: the
+per-leaf measures, not the segmentation) and realistic
 rosettes (6 leaves for 12; one leaf for 30, area -82 %, which a note says is a ring of merged
-leaves, tested below; the 12-leaf one's area, -40 % while its crown's noisy column held its
-inner leaves up to 69 mm, reads -11 % since the beams end the crown where they meet the
+leaves, tested below, where its true leaves measured alone read -36 %: the segmentation
+mostly; the 12-leaf one's area, -40 % while its crown's noisy column held its inner leaves
+up to 69 mm, reads -11 % since the beams end the crown where they meet the
 leaves standing round it, segmentation.cup_stem_top); on the 3-leaf plants, the ideal rosette's height (-2.3 %: the
 top is a leaf's tip, and the URG's beams, 0.35 deg apart, pass 1.5 mm below it; with a
 fan three times finer the cloud's highest point lies 0.3 mm below it). The realistic
@@ -54,7 +58,8 @@ the grids (tested at the end).
 Counts can meet their target with leaves split and merged, so the ideal maize and wheat
 and the realistic dicot are also matched leaf by leaf to their true leaves (IoU of points
 > 0.5, :mod:`plantsim.evaluation.organ_match`); the realistic maize and wheat meet their
-count with 0 and 4 leaves matched.
+count with 2 and 4 leaves matched (each point's truth the face its beam hit: the nearest
+face is where the noise put it, and matched the maize's 0).
 """
 
 import functools
@@ -87,6 +92,11 @@ PLANTS = {
 IDEAL = (True, 0.5)
 REALISTIC = (False, 1.0)
 NOT_YET = "issue 13 target not met by the current segmentation (see the module docstring)"
+# Leaf areas the per-leaf measures miss on the true leaves too, each measured alone (each
+# point labelled by its nearest face, on a realistic scan by the face its beam hit):
+# scripts/traits_area_bound.py.
+NOT_BY_SEGMENTATION = ("issue 13 target not met, and the true leaves measured alone miss it too "
+                       "(scripts/traits_area_bound.py; see the module docstring)")
 SMALL = ["maize3", "rosette3", "bean3"]
 # Per scan, each plant point's range noise along its beam (what `plantsim traits` reads
 # from a scan's sidecar), filled as the scans run.
@@ -128,8 +138,8 @@ def _true_leaf_count(truth):
     return traits.traits_from_truth(truth).leaf_count
 
 
-def _miss(*ids):
-    return [pytest.param(*i, marks=pytest.mark.xfail(strict=True, reason=NOT_YET)) for i in ids]
+def _miss(*ids, reason=NOT_YET):
+    return [pytest.param(*i, marks=pytest.mark.xfail(strict=True, reason=reason)) for i in ids]
 
 
 def _small(*missed):
@@ -172,15 +182,15 @@ def test_leaf_count_from_an_ideal_scan_within_twenty_percent(name):
     assert _rel(est.leaf_count, _true_leaf_count(truth)) <= 0.20
 
 
-@pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",))
-                         + _small())
+@pytest.mark.parametrize("name", ["maize", "wheat", "dicot"]
+                         + _miss(("rosette12",), ("rosette30",), reason=NOT_BY_SEGMENTATION) + _small())
 def test_leaf_area_from_an_ideal_scan_within_twenty_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.20
 
 
-# The maize (11 for 9) and the wheat (13 for 16) meet the count by number only: 0 and
-# 1 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md);
+# The maize (11 for 9) and the wheat (10 for 16) meet the count by number mostly: 2 and
+# 4 of their found leaves match a true leaf (scripts/traits_accuracy.py, docs/traits.md);
 # so does the dicot (11 for 8: no leaflets grouped, its leaves split in two or three).
 @pytest.mark.parametrize("name", ["maize", "wheat", "dicot"] + _miss(("rosette12",), ("rosette30",))
                          + _small())
@@ -223,8 +233,8 @@ def test_an_ideal_dicots_leaves_are_its_true_compound_leaves():
     assert sorted(min(o) for o in owners) == list(range(8))
 
 
-@pytest.mark.parametrize("name", ["maize", "dicot", "rosette12"] + _miss(("wheat",), ("rosette30",))
-                         + _small())
+@pytest.mark.parametrize("name", ["maize", "dicot", "rosette12"] + _miss(("wheat",), reason=NOT_BY_SEGMENTATION)
+                         + _miss(("rosette30",)) + _small())
 def test_leaf_area_from_a_realistic_scan_within_thirty_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.leaf_area_m2, truth["leaf_area_m2"]) <= 0.35
@@ -340,10 +350,11 @@ def test_a_noisy_wheats_tillers_are_found_in_their_turn_angles_each_with_its_hei
             assert st.diameter_resolved and st.diameter_m < 0.010
     # The plant's diameter: theirs, not the axis culm's noisy column (47 mm; 16.7 with it).
     assert est.stem_diameter_m < 0.010
-    # Their culms no longer make leaves: every leaf found is mostly one true leaf.
+    # Their culms no longer make leaves: every leaf found is mostly one true leaf (each
+    # point's truth the face its beam hit; 79-100 % of each leaf's points are a leaf's).
     points, _ = _cloud("wheat", *REALISTIC)
     seg = traits.segment_for_traits(points, range_noise_m=_RANGE_NOISE[("wheat", *REALISTIC)])
-    labels = procedural_leaf_labels(seg.points, PLANTS["wheat"]())
+    labels = procedural_leaf_labels(seg.points, PLANTS["wheat"](), range_noise_m=seg.range_noise_m)
     for i in range(len(seg.leaf_midribs)):
         assert np.mean(labels[seg.leaf_label == i] >= 0) > 0.5, i
 
