@@ -43,15 +43,17 @@ from traits_separability import PLANTS  # the five plants of the trait tests (sc
 DEFAULT_STEP = {"ideal": 0.5, "realistic": 1.0}
 
 
-def leaf_bases(plant, vertices_turntable: np.ndarray) -> np.ndarray:
-    """(k, 3) each true leaf's base on the placed mesh: its first vertex, a corner of the
-    row of vertices it starts with at its insertion (the generators build each leaf from
-    its base row up)."""
+def leaf_bases(plant, T_turntable_mesh: np.ndarray) -> np.ndarray:
+    """(k, 3) each true leaf's base in the turntable frame: its first vertex in the
+    generator's arrays, a corner of the row of vertices it starts with at its insertion
+    (the generators build each leaf from its base row up), placed as the scan placed the
+    plant (the placed mesh's own vertex order need not be the generator's)."""
     n_leaves = len(plant.traits["leaves"])
     first = np.full(n_leaves, np.iinfo(np.int64).max)
     leaf_faces = np.flatnonzero(plant.face_part == PART_LEAF)
     np.minimum.at(first, plant.face_organ[leaf_faces], plant.faces[leaf_faces].min(axis=1))
-    return vertices_turntable[first]
+    base_mesh = plant.vertices_m[first]
+    return base_mesh @ T_turntable_mesh[:3, :3].T + T_turntable_mesh[:3, 3]
 
 
 def true_leaf_area(points: np.ndarray, true_label: np.ndarray, bases: np.ndarray,
@@ -99,7 +101,7 @@ def main() -> None:
                 rigs.append((f"fitted rig ({fitted.lidar_distance_m:.2f} m out, {fitted.lidar_height_m:.2f} m up)",
                              fitted))
             truth = plant.traits["leaf_area_m2"]
-            bases = leaf_bases(plant, placed.vertices_turntable)
+            bases = leaf_bases(plant, placed.T_turntable_mesh)
             for rig_name, rig in rigs:
                 result = run_scan(dataclasses.replace(config, rig=rig), plant=placed)
                 points = result.cloud.plant_only().points_turntable
