@@ -251,6 +251,12 @@ def _evaluation_line(evaluation) -> str:
                if e.trait.startswith("stem[") and e.trait.endswith("].height_m") and math.isfinite(e.relative_error)]
         if len(own) > 1:
             parts.append(f"stem heights {min(own):.1%}-{max(own):.1%}")
+        alone = evaluation.labelled_leaves
+        area = next((e for e in evaluation.traits.errors if e.trait == "leaf_area_m2"), None)
+        if alone is not None and area is not None and math.isfinite(alone.leaf_area_m2) and area.reference:
+            # The leaf area's error were the leaves cut out perfectly: the scan's own limit.
+            parts.append(f"leaf area {area.relative_error:.1%} (its {alone.leaf_count} labelled leaves measured "
+                         f"alone {abs(alone.leaf_area_m2 - area.reference) / area.reference:.1%})")
         text += "; trait errors: " + ", ".join(parts)
     return text
 

@@ -10,7 +10,14 @@ written by ``scripts/make_plants.py``), the exact traits the plant was built wit
   quantiles, Chamfer distance, coverage, coverage by height band;
 - trait errors (:func:`plantsim.traits.compare_traits`): traits extracted from the
   cloud (S) against the exact traits (R), absolute and ``|S - R| / R`` as the paper
-  reports them.
+  reports them;
+- when the mesh file says which faces are leaves (``plantsim plant make``'s OBJ, named
+  parts, face labels or colours), its leaves measured alone: each point labelled by the
+  leaf its beam hit, each leaf measured by the same per-leaf measures with no
+  segmentation (:func:`plantsim.evaluation.traits.measure_labelled_leaves`). Against
+  the traits extracted, it splits the leaf area's error into the segmentation's and
+  what the scan itself sees: how well the rig would measure the plant were its leaves
+  cut out perfectly.
 
 Only points whose first surface was the plant are measured: the turntable and the rig
 are not part of the truth. The traits file is in the mesh's own frame (metres, z up);
@@ -95,6 +102,10 @@ class Evaluation:
         time_s: wall time of the evaluation, seconds.
         range_noise_source: what the leaf widths were checked against (the range
             noise, :func:`range_noise_sigma_m`), or why they were not; None when not said.
+        labelled_leaves: the mesh's labelled leaves measured alone from the points
+            (:func:`labelled_leaf_mesh`, :func:`plantsim.evaluation.traits.measure_labelled_leaves`),
+            or None when the mesh labels no leaf or traits were not compared.
+        labelled_leaves_source: how the points were labelled, or why they were not.
     """
 
     n_points: int
@@ -104,6 +115,8 @@ class Evaluation:
     truth_path: str | None
     time_s: float
     range_noise_source: str | None = None
+    labelled_leaves: traits.LabelledLeaves | None = None
+    labelled_leaves_source: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The sidecar's ``evaluation`` object: the metrics' fields at the top level,
@@ -133,6 +146,17 @@ class Evaluation:
                     [lf.width_across_beams_share for lf in self.estimate.leaves])
             if self.range_noise_source is not None:
                 out["traits"]["leaf_widths_checked_against"] = self.range_noise_source
+            if self.labelled_leaves is not None:
+                # The leaf area's error were the leaves cut out perfectly, beside the one read.
+                reference = next((e.reference for e in self.traits.errors if e.trait == "leaf_area_m2"), None)
+                area = self.labelled_leaves.leaf_area_m2
+                labelled = self.labelled_leaves.to_dict()
+                labelled["leaf_area_relative_error"] = metrics._to_jsonable(
+                    abs(area - reference) / reference if reference and math.isfinite(area) else None)
+                labelled["how"] = self.labelled_leaves_source
+                out["traits"]["labelled_leaves_measured_alone"] = labelled
+            elif self.labelled_leaves_source is not None:
+                out["traits"]["labelled_leaves_measured_alone"] = {"how": self.labelled_leaves_source}
         out["time_s"] = self.time_s
         return out
 
@@ -424,6 +448,81 @@ def _labelled_truth(plant: PlantMesh) -> dict[str, Any] | None:
     return truth
 
 
+def labelled_leaf_mesh(plant: PlantMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The leaves (and stems) the plant's own file labels, in the turntable frame:
+    (vertices (v, 3), faces (f, 3), each face's leaf index or -1 for a stem (f,), each
+    leaf's base (k, 3)); None when the file labels no leaf (or is not a file).
+
+    The parts are read by :func:`plantsim.plant.labels.read_labelled_parts` (named
+    objects or groups, face or vertex labels, colours), scaled by the plant's units and
+    placed with its ``T_turntable_mesh``. A leaf's base is its vertex nearest a stem's (where
+    it grows from the stem, or its petiole's end), or with no stem part the one nearest the
+    turntable's axis.
+
+    Raises:
+        ValueError, OSError: a file whose labels cannot be read.
+    """
+    from scipy.spatial import cKDTree
+
+    from plantsim.plant.mesh import UNITS_TO_M
+    from plantsim.transforms import apply_T
+
+    source = Path(str(plant.source))
+    if not source.is_file():
+        return None
+    parts = [p for p in labels.read_labelled_parts(source) if len(p.faces)]
+    if not any(p.kind == "leaf" for p in parts):
+        return None
+    scale = UNITS_TO_M.get(plant.units, 1.0)
+    vertices, faces, face_leaf, leaf_vertices, stem_vertices = [], [], [], [], []
+    offset = 0
+    for p in parts:
+        used = np.unique(p.faces)
+        v = apply_T(plant.T_turntable_mesh, np.asarray(p.vertices, dtype=np.float64) * scale)
+        vertices.append(v)
+        faces.append(np.asarray(p.faces, dtype=np.int64) + offset)
+        offset += len(v)
+        if p.kind == "leaf":
+            face_leaf.append(np.full(len(p.faces), len(leaf_vertices), dtype=np.int64))
+            leaf_vertices.append(v[used])
+        else:
+            face_leaf.append(np.full(len(p.faces), -1, dtype=np.int64))
+            stem_vertices.append(v[used])
+    if stem_vertices:
+        tree = cKDTree(np.vstack(stem_vertices))
+        bases = np.array([lv[int(np.argmin(tree.query(lv)[0]))] for lv in leaf_vertices])
+    else:
+        bases = np.array([lv[int(np.argmin(np.hypot(lv[:, 0], lv[:, 1])))] for lv in leaf_vertices])
+    return np.vstack(vertices), np.vstack(faces), np.concatenate(face_leaf), bases
+
+
+def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
+                     settings: traits.TraitSettings | None) -> tuple[traits.LabelledLeaves | None, str]:
+    """The plant file's labelled leaves measured alone from ``pts``, and how the points
+    were labelled; (None, why not) when the file labels no leaf or cannot be read."""
+    from plantsim.evaluation.organ_match import leaf_labels_along_beams, leaf_labels_from_mesh
+
+    try:
+        mesh = labelled_leaf_mesh(plant)
+    except (ValueError, OSError, KeyError, IndexError) as exc:
+        return None, f"not measured: the mesh's part labels could not be read ({type(exc).__name__}: {exc})"
+    if mesh is None:
+        return None, "not measured: the mesh labels no leaf (named parts, face labels or colours)"
+    vertices, faces, face_leaf, bases = mesh
+    noise = None if range_noise_m is None else np.asarray(range_noise_m, dtype=np.float64)
+    if noise is not None and np.any(noise):
+        point_leaf, nearest = leaf_labels_along_beams(pts, noise, vertices, faces, face_leaf)
+        how = (f"{len(bases)} leaves labelled in the mesh; each point labelled by the leaf its beam hit "
+               f"(organ_match.leaf_labels_along_beams; {nearest} of {len(pts)} by their nearest face, their "
+               "beam meeting no face within 4 sigma)")
+    else:
+        point_leaf = leaf_labels_from_mesh(pts, vertices, faces, face_leaf)
+        how = f"{len(bases)} leaves labelled in the mesh; each point labelled by its nearest face"
+    measured = traits.measure_labelled_leaves(pts, point_leaf, leaf_bases_m=bases, range_noise_m=noise,
+                                              settings=settings)
+    return measured, how + "; each leaf measured alone (traits.measure_labelled_leaves)"
+
+
 # Progress of the trait extraction, in the units of the distance part (one a
 # cloud point): it reports only when done, and costs about five times the exact
 # distances a point (libigl, bundled maize, 70k-280k points), so the bar moves
@@ -534,13 +633,17 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             # A truth file in another schema costs the trait comparison, never the scan.
             logger.warning("truth %s not usable for traits, comparison skipped: %s", found, exc)
             comparison = estimate = None
+    leaves_alone, leaves_how = None, None
+    if comparison is not None:
+        leaves_alone, leaves_how = _labelled_leaves(pts, plant, range_noise_m, options.trait_settings)
     if progress is not None:
         progress(total, total)
     if found is None and labelled is not None:
         found = f"{plant.source} (face labels)"
     return Evaluation(n_points=int(len(pts)), metrics=measured, traits=comparison, estimate=estimate,
                       truth_path=str(found) if found else None, time_s=time.perf_counter() - t0,
-                      range_noise_source=range_noise_source if with_traits else None)
+                      range_noise_source=range_noise_source if with_traits else None,
+                      labelled_leaves=leaves_alone, labelled_leaves_source=leaves_how)
 
 
 def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
