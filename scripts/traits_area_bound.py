@@ -4,11 +4,10 @@ For each procedural plant (exact organs), an ideal 0.5-degree scan and a realist
 one; every point is given its true leaf (:mod:`plantsim.evaluation.organ_match`: the leaf of
 its nearest mesh face, and on the realistic scan of the face its beam hit, since the range
 noise moves a point along its beam and its nearest face is where the noise put it) and each
-true leaf's points are measured alone by the same per-leaf measures
-:func:`plantsim.evaluation.traits.extract_traits` uses (the ribbon between the margins along
-a midrib, on the realistic scan with each cross-section's width read across its beams where
-they can; the midrib here the centroids of level sets of the geodesic distance from the
-leaf's point nearest its base on the mesh, bins of four voxels as in the segmentation).
+true leaf's points are measured alone (:func:`plantsim.evaluation.traits.measure_labelled_leaves`:
+the per-leaf measures :func:`plantsim.evaluation.traits.extract_traits` uses, the ribbon between
+the margins along a midrib, on the realistic scan with each cross-section's width read across
+its beams where they can; the midrib from the leaf's base on the mesh).
 Printed per plant and scan: the truth, the area ``extract_traits`` reads with its own
 segmentation, and the area the true leaves read. Where the true leaves read as far off as
 the found ones, the error is what the scan sees and how the ribbon reads it, not how the
@@ -26,18 +25,16 @@ import dataclasses
 import logging
 
 import numpy as np
-from scipy.sparse import csgraph
 
 from plantsim.evaluation import traits
+from plantsim.evaluation.evaluate import scan_range_noise
 from plantsim.evaluation.organ_match import procedural_leaf_labels
-from plantsim.evaluation.segmentation import _graph, voxel_centroids
 from plantsim.plant.mesh import plant_from_arrays
+from plantsim.plant.procedural import PART_LEAF
 from plantsim.rig.fit import fit_rig
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
-from plantsim.evaluation.evaluate import scan_range_noise
-from plantsim.plant.procedural import PART_LEAF
 from traits_separability import PLANTS  # the five plants of the trait tests (scripts/ is on the path)
 
 DEFAULT_STEP = {"ideal": 0.5, "realistic": 1.0}
@@ -54,29 +51,6 @@ def leaf_bases(plant, T_turntable_mesh: np.ndarray) -> np.ndarray:
     np.minimum.at(first, plant.face_organ[leaf_faces], plant.faces[leaf_faces].min(axis=1))
     base_mesh = plant.vertices_m[first]
     return base_mesh @ T_turntable_mesh[:3, :3].T + T_turntable_mesh[:3, 3]
-
-
-def true_leaf_area(points: np.ndarray, true_label: np.ndarray, bases: np.ndarray,
-                   seg: "traits.segmentation.Segmentation", noise: np.ndarray | None = None) -> float:
-    """Sum over the true leaves of the ribbon area of each one's points alone, the midrib
-    from the node nearest its base (``bases``, per leaf); ``noise``: the points' range
-    noise vectors, or None."""
-    v = seg.scale.voxel_m
-    total = 0.0
-    for k, base in enumerate(bases):
-        own = true_label == k
-        lp = points[own]
-        if len(lp) < 10:
-            continue
-        nodes, _ = voxel_centroids(lp, v)
-        graph = _graph(nodes, 2.0 * v, spacing=seg.scale.spacing_m)
-        dist = csgraph.dijkstra(graph, directed=False, indices=int(np.argmin(np.linalg.norm(nodes - base, axis=1))))
-        reached = np.isfinite(dist)
-        level = (dist[reached] / (4.0 * v)).astype(np.int64)
-        midrib = np.array([nodes[reached][level == b].mean(axis=0) for b in np.unique(level)])
-        area = traits._leaf_measures(lp, midrib, link=seg.link_m, noise_m=None if noise is None else noise[own])[2]
-        total += 0.0 if np.isnan(area) else area
-    return total
 
 
 def main() -> None:
@@ -107,9 +81,9 @@ def main() -> None:
                 points = result.cloud.plant_only().points_turntable
                 noise = None if setting == "ideal" else scan_range_noise(result)[0]
                 found = traits.extract_traits(points, range_noise_m=noise).leaf_area_m2
-                seg = traits.segment_for_traits(points, range_noise_m=noise)
-                labels = procedural_leaf_labels(seg.points, plant, range_noise_m=seg.range_noise_m)
-                true = true_leaf_area(seg.points, labels, bases, seg, seg.range_noise_m)
+                labels = procedural_leaf_labels(points, plant, range_noise_m=noise)
+                true = traits.measure_labelled_leaves(points, labels, leaf_bases_m=bases,
+                                                      range_noise_m=noise).leaf_area_m2
                 print(f"{setting:9s} {step:g} deg  {name:10s} {rig_name:38s} {1e4 * truth:7.1f} cm^2 / "
                       f"{1e4 * found:7.1f} ({100 * (found / truth - 1):+.0f} %) / {1e4 * true:7.1f} "
                       f"({100 * (true / truth - 1):+.0f} %)", flush=True)
