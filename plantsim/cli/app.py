@@ -251,7 +251,7 @@ def _evaluation_line(evaluation) -> str:
                if e.trait.startswith("stem[") and e.trait.endswith("].height_m") and math.isfinite(e.relative_error)]
         if len(own) > 1:
             parts.append(f"stem heights {min(own):.1%}-{max(own):.1%}")
-        alone = evaluation.labelled_leaves
+        alone = getattr(evaluation, "labelled_leaves", None)
         area = next((e for e in evaluation.traits.errors if e.trait == "leaf_area_m2"), None)
         if alone is not None and area is not None and math.isfinite(alone.leaf_area_m2) and area.reference:
             # The leaf area's error were the leaves cut out perfectly: the scan's own limit.
