@@ -22,7 +22,8 @@ disk); :func:`write_cloud` writes a cloud and its sidecar as a unit through
 through (``plantsim.scan.pipeline.write_result`` adds the raw bag to the same
 set), so a failure leaves no half-written file and no new cloud beside an old
 sidecar. Readers give a :class:`PointCloud` back, for round trips and
-for evaluating clouds made elsewhere.
+for evaluating clouds made elsewhere; :func:`read_point_field` reads any one per-point
+field by name (labels made elsewhere).
 
 Every format carries the same per-point fields: x, y, z (turntable frame,
 metres), classification (what the beam hit; :data:`CLASSIFICATION`), intensity,
@@ -254,6 +255,11 @@ _PLY_NP = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": 
 
 def from_ply(data: bytes) -> PointCloud:
     """Reads a binary little-endian PLY point cloud (plantsim's fields, or at least x y z)."""
+    return _from_rows(_ply_rows(data))
+
+
+def _ply_rows(data: bytes) -> np.ndarray:
+    """A binary little-endian PLY's vertices as a structured array (``scalar_`` prefixes dropped)."""
     end = data.find(b"end_header\n")
     if not data.startswith(b"ply") or end < 0:
         raise ValueError("not a PLY file (no 'ply' magic or 'end_header')")
@@ -271,8 +277,7 @@ def from_ply(data: bytes) -> PointCloud:
             name = parts[2]
             fields.append((name[len(_PLY_PREFIX):] if name.startswith(_PLY_PREFIX) else name,
                            _PLY_NP[parts[1]]))
-    rows = np.frombuffer(data, dtype=np.dtype(fields), count=n, offset=end + len(b"end_header\n"))
-    return _from_rows(rows)
+    return np.frombuffer(data, dtype=np.dtype(fields), count=n, offset=end + len(b"end_header\n"))
 
 
 def _from_rows(rows: np.ndarray) -> PointCloud:
@@ -309,6 +314,11 @@ def to_pcd(cloud: PointCloud) -> bytes:
 
 def from_pcd(data: bytes) -> PointCloud:
     """Reads a binary or ASCII PCD v0.7 with at least x y z."""
+    return _from_rows(_pcd_rows(data))
+
+
+def _pcd_rows(data: bytes) -> np.ndarray:
+    """A binary or ASCII PCD v0.7's points as a structured array."""
     header, offset = {}, 0
     while True:
         end = data.index(b"\n", offset)
@@ -332,7 +342,7 @@ def from_pcd(data: bytes) -> PointCloud:
             rows[name] = table[:, i]
     else:
         raise ValueError(f"PCD DATA {header['DATA'][0]!r} is not supported (binary or ascii)")
-    return _from_rows(rows)
+    return rows
 
 
 # --- TXT / XYZ (ASCII columns, CloudCompare-style header) ------------------
@@ -382,6 +392,11 @@ def to_pts(cloud: PointCloud) -> bytes:
 
 
 def from_pts(data: bytes) -> PointCloud:
+    return _from_rows(_pts_rows(data))
+
+
+def _pts_rows(data: bytes) -> np.ndarray:
+    """A PTS file's points (count line, then x y z intensity [r g b]) as a structured array."""
     body = data.split(b"\n", 1)[1] if b"\n" in data else b""
     # An empty cloud is the count line alone: no rows to count columns in.
     table = np.loadtxt(io.BytesIO(body), ndmin=2) if body.strip() else np.zeros((0, 4))
@@ -389,7 +404,7 @@ def from_pts(data: bytes) -> PointCloud:
     rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
     for i, name in enumerate(names):
         rows[name] = table[:, i]
-    return _from_rows(rows)
+    return rows
 
 
 _TXT_COLUMNS = ["x", "y", "z"] + [name for name, _, _ in _FIELDS]
@@ -397,6 +412,12 @@ _TXT_COLUMNS = ["x", "y", "z"] + [name for name, _, _ in _FIELDS]
 
 def from_txt(data: bytes) -> PointCloud:
     """Reads ASCII columns: named by a ``//`` or ``#`` header, else plantsim's order."""
+    return _from_rows(_txt_rows(data))
+
+
+def _txt_rows(data: bytes) -> np.ndarray:
+    """ASCII columns as a structured array: named by a ``//`` or ``#`` header (lower case,
+    ``Scalar_``/``SF_`` dropped), else plantsim's order, else x y z and ``_col3``, ``_col4``..."""
     first = data.split(b"\n", 1)[0].decode("ascii", "replace")
     header = first.startswith(("//", "#"))
     body = data.split(b"\n", 1)[1] if header and b"\n" in data else (b"" if header else data)
@@ -420,7 +441,7 @@ def from_txt(data: bytes) -> PointCloud:
     rows = np.empty(len(table), dtype=[(n, np.float64) for n in names])
     for i, name in enumerate(names):
         rows[name] = table[:, i]
-    return _from_rows(rows)
+    return rows
 
 
 # --- E57 (ASTM E2807, through pye57 / libE57Format) ------------------------
@@ -608,6 +629,47 @@ def read_cloud(path: str | os.PathLike) -> PointCloud:
     if suffix not in READERS:
         raise ValueError(f"unknown point-cloud format {suffix!r}; use one of {', '.join(READERS)}")
     return READERS[suffix](path.read_bytes())
+
+
+def read_point_field(path: str | os.PathLike, name: str) -> np.ndarray:
+    """One per-point field of a point-cloud file, in the file's point order: a LAS/LAZ
+    dimension (standard, as ``classification`` or ``point_source_id``, or extra bytes), a
+    PLY vertex property (``scalar_`` prefix optional), a PCD field, or a TXT/XYZ column
+    (named by its header, lower case, ``Scalar_``/``SF_`` dropped; a header-less file's
+    columns past x y z are ``_col3``, ``_col4``, ...). For per-point labels made elsewhere
+    (a hand segmentation in CloudCompare, a labelled dataset such as Pheno4D's
+    ``x y z label`` text files).
+
+    Raises:
+        ValueError: an unknown format, a format with no such fields (E57, PTS beyond its
+            columns), or a field the file does not have (the message lists those it has).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in READERS:
+        raise ValueError(f"unknown point-cloud format {suffix!r}; use one of {', '.join(READERS)}")
+    if suffix not in (".las", ".laz", ".ply", ".pcd", ".txt", ".xyz", ".pts"):
+        raise ValueError(f"a {suffix} cloud carries no per-point fields beyond its coordinates and "
+                         "intensity; write the labels to .las, .ply, .pcd or .txt")
+    data = path.read_bytes()
+    if suffix in (".las", ".laz"):
+        import laspy
+
+        if data[:4] == b"LASF" and len(data) > 104 and data[104] & 0x80:  # compressed bit
+            _laz_backend()
+        las = laspy.read(io.BytesIO(data))
+        names = list(las.point_format.dimension_names)
+        if name in names:
+            return np.asarray(las[name])
+    else:
+        rows = {".ply": _ply_rows, ".pcd": _pcd_rows, ".txt": _txt_rows, ".xyz": _txt_rows,
+                ".pts": _pts_rows}[suffix](data)
+        names = list(rows.dtype.names)
+        key = name[len(_PLY_PREFIX):] if suffix == ".ply" and name.startswith(_PLY_PREFIX) else name
+        key = key.lower() if suffix in (".txt", ".xyz") and not key.startswith("_col") else key
+        if key in names:
+            return np.asarray(rows[key])
+    raise ValueError(f"{path.name} has no per-point field {name!r}; it has: {', '.join(names)}")
 
 
 def _json_default(value):
