@@ -146,3 +146,118 @@ def test_a_scan_of_an_unlabelled_mesh_says_its_leaves_were_not_measured_alone(tm
     evaluation = json.loads((tmp_path / "rosette.las.json").read_text())["evaluation"]["traits"]
     assert evaluation["labelled_leaves_measured_alone"] == {
         "how": "not measured: the mesh labels no leaf (named parts, face labels or colours)"}
+
+
+def _labelled_plant_points():
+    """The two strips, a stem ring up the axis (label 1) and sparse soil (label 0) round it:
+    Pheno4D's convention (0 soil, 1 stem, each leaf its own label)."""
+    pts, labels = _two_leaves()
+    t = np.linspace(0.0, 20 * np.pi, 400)
+    stem = np.column_stack([0.004 * np.cos(t), 0.004 * np.sin(t), np.linspace(0.006, 0.07, 400)])
+    soil = np.column_stack([np.random.default_rng(0).uniform(-0.1, 0.1, (200, 2)), np.full(200, 0.006)])
+    return (np.vstack([pts, stem, soil]),
+            np.r_[np.where(labels == 0, 5, 7), np.ones(len(stem), int), np.zeros(len(soil), int)])
+
+
+def test_a_labelled_text_cloud_reads_its_leaves_alone(tmp_path, capsys):
+    # A header-less x y z label file (Pheno4D's form): the fourth column is _col3.
+    from plantsim.cli.app import main
+
+    pts, labels = _labelled_plant_points()
+    path = tmp_path / "plant.txt"
+    np.savetxt(path, np.column_stack([pts, labels]), fmt="%.6f %.6f %.6f %d")
+    out = tmp_path / "t.json"
+    assert main(["traits", str(path), "--labels", "_col3", "--stem-label", "1", "--ignore-labels", "0",
+                 "-o", str(out)]) == 0
+    lab = json.loads(out.read_text())["labelled_leaves"]
+    assert lab["field"] == "_col3" and lab["labels"] == [5, 7] and lab["leaf_count"] == 2
+    assert lab["areas_m2"] == pytest.approx([0.0020, 0.0024], rel=0.02)
+    assert lab["n_stem_points"] == 400 and lab["measured_from"] == "each leaf's point nearest a stem point"
+    assert lab["stem_label"] == 1 and lab["ignored_labels"] == [0]
+    assert "labelled leaves ('_col3'): 2 of 2 measured, area 44.27 cm^2" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".pcd", ".las"])
+def test_a_label_field_is_read_from_each_format_that_carries_one(tmp_path, suffix):
+    from plantsim.cloud.export import read_point_field, write_cloud
+    from plantsim.cloud.reconstruct import PointCloud
+
+    pts, labels = _labelled_plant_points()
+    n = len(pts)
+    cloud = PointCloud(points_turntable=pts, hit_class=np.ones(n, np.uint8), beam_index=np.zeros(n, np.uint16),
+                       scan_index=np.zeros(n, np.uint32), turntable_angle_rad=np.zeros(n), range_m=np.ones(n),
+                       time_s=np.zeros(n))
+    path = tmp_path / f"plant{suffix}"
+    write_cloud(path, cloud)
+    data = path.read_bytes()
+    if suffix == ".las":
+        import laspy
+
+        las = laspy.read(path)
+        las.add_extra_dim(laspy.ExtraBytesParams(name="leaf", type=np.int16))
+        las.leaf = labels.astype(np.int16)
+        las.write(path)
+        field = "leaf"
+    elif suffix == ".ply":
+        # A labels property added to the vertex element (as CloudCompare writes a scalar field).
+        end = data.index(b"end_header\n")
+        header = data[:end] + b"property int scalar_label\n"  # the vertex element is the file's only one
+        rows = np.frombuffer(data[end + len(b"end_header\n"):], dtype=np.uint8).reshape(n, -1)
+        body = np.hstack([rows, labels.astype("<i4").view(np.uint8).reshape(n, 4)])
+        path.write_bytes(header + b"end_header\n" + body.tobytes())
+        field = "scalar_label"
+    else:
+        field = "label"  # plantsim's PCD label is the class code (4, plant) for every point
+        labels = np.full(n, 4)
+    np.testing.assert_array_equal(read_point_field(path, field), labels)
+    # The message lists the fields the file has (a PLY's without their scalar_ prefix).
+    with pytest.raises(ValueError, match=f"plant{suffix} has no per-point field 'nope'; it has: .*"
+                                         f"{field.removeprefix('scalar_')}"):
+        read_point_field(path, "nope")
+
+
+def test_labels_that_cannot_be_read_say_why(tmp_path, capsys):
+    from plantsim.cli.app import main
+    from plantsim.cloud.export import read_point_field
+
+    pts, labels = _labelled_plant_points()
+    path = tmp_path / "plant.txt"
+    np.savetxt(path, np.column_stack([pts, labels + 0.5]), fmt="%.6f")
+    assert main(["traits", str(path), "--labels", "_col3"]) == 2
+    assert "the labels must be whole numbers" in capsys.readouterr().err
+    assert main(["traits", str(path), "--labels", "label"]) == 2
+    assert "plant.txt has no per-point field 'label'; it has: x, y, z, _col3" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="a .e57 cloud carries no per-point fields beyond its coordinates"):
+        read_point_field(tmp_path / "plant.e57", "label")
+    with pytest.raises(ValueError, match="unknown point-cloud format '.csv'"):
+        read_point_field(tmp_path / "plant.csv", "label")
+
+
+def test_labels_follow_the_points_the_traits_measure(tmp_path):
+    # plantsim's LAS classes its points: the traits read the plant's, and so do the labels
+    # (the soil here classed turntable, its labels never read).
+    import laspy
+
+    from plantsim.cli.app import main
+    from plantsim.cloud.export import write_cloud
+    from plantsim.cloud.reconstruct import PointCloud
+    from plantsim.rig.scene import HitClass
+
+    pts, labels = _labelled_plant_points()
+    n = len(pts)
+    hit = np.where(labels == 0, HitClass.TURNTABLE, HitClass.PLANT).astype(np.uint8)
+    cloud = PointCloud(points_turntable=pts, hit_class=hit, beam_index=np.zeros(n, np.uint16),
+                       scan_index=np.zeros(n, np.uint32), turntable_angle_rad=np.zeros(n), range_m=np.ones(n),
+                       time_s=np.zeros(n))
+    path = tmp_path / "plant.las"
+    write_cloud(path, cloud)
+    las = laspy.read(path)
+    las.add_extra_dim(laspy.ExtraBytesParams(name="organ", type=np.int16))
+    las.organ = np.where(labels == 0, 9, labels).astype(np.int16)  # the soil would be leaf 9 if read
+    las.write(path)
+    out = tmp_path / "t.json"
+    assert main(["traits", str(path), "--labels", "organ", "--stem-label", "1", "-o", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["points_measured"].startswith(f"the {(labels != 0).sum()} of {n} points classed as plant")
+    assert data["labelled_leaves"]["labels"] == [5, 7]
+    assert data["labelled_leaves"]["areas_m2"] == pytest.approx([0.0020, 0.0024], rel=0.02)

@@ -9,6 +9,12 @@ along their beams before the height is read (a note gives the height as measured
 the output says what that noise is, or why it is not known, and repeats what the scan
 said its rig could not do for the plant (``scan_rig_fit_warnings``: a flat plant's
 leaves seen edge-on, a top seen at grazing beams), which bounds what the traits can read.
+
+``--labels FIELD`` also measures the leaves a per-point label field of the file gives (a hand
+segmentation, a labelled dataset such as Pheno4D's ``x y z label`` text files with
+``--stem-label 1 --ignore-labels 0``), each alone by the same per-leaf measures, with no
+segmentation (``labelled_leaves`` in the JSON): set against the traits, it says how much of
+a leaf trait's error is the segmentation's.
 """
 
 from __future__ import annotations
@@ -33,6 +39,17 @@ def add_traits_command(sub) -> None:
     p.add_argument("--grids", type=int, default=9, metavar="N",
                    help="segment the organs on N shifted voxel grids and keep the median's (odd; default 9; "
                         "1: one grid, about a third of the time, no spread)")
+    p.add_argument("--labels", metavar="FIELD",
+                   help="also measure the leaves a per-point label field gives (a LAS dimension, PLY property, "
+                        "PCD field or TXT column; a header-less TXT's 4th column is _col3), each alone with "
+                        "the same measures, no segmentation: every label is a leaf but --stem-label's, "
+                        "--ignore-labels' and negative ones")
+    p.add_argument("--stem-label", type=int, default=0, metavar="N",
+                   help="with --labels: the stem's label (default 0); leaves are measured from where they "
+                        "meet it")
+    p.add_argument("--ignore-labels", type=int, nargs="+", default=[], metavar="N",
+                   help="with --labels: labels that are neither leaf nor stem (soil, pot), e.g. 0 for "
+                        "Pheno4D's with --stem-label 1")
     p.set_defaults(func=cmd_traits)
 
 
@@ -42,6 +59,55 @@ def traits_dict(points_turntable, *, base_z: float = 0.0, range_noise_m=None, gr
 
     return extract_traits(points_turntable, settings=TraitSettings(base_z=base_z, shifted_grids=grids),
                           range_noise_m=range_noise_m).to_dict()
+
+
+def labelled_leaves_dict(points_turntable, labels, *, stem_label: int = 0, ignore_labels=(),
+                         base_z: float = 0.0, range_noise_m=None) -> dict:
+    """The leaves per-point ``labels`` give, each measured alone
+    (:func:`plantsim.evaluation.traits.measure_labelled_leaves`, on the points of every label
+    but ``ignore_labels``': the soil or a pot does not set the voxel), as JSON: every label is
+    a leaf but ``stem_label``'s, ``ignore_labels``' and negative ones; a leaf is measured
+    from its point nearest a stem point (its nearest the turntable's axis with no stem point).
+
+    Raises:
+        ValueError: labels that are not whole numbers, or not one per point.
+    """
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from plantsim.evaluation.traits import TraitSettings, measure_labelled_leaves
+
+    pts = np.asarray(points_turntable, dtype=np.float64)
+    values = np.asarray(labels)
+    if values.shape != (len(pts),):
+        raise ValueError(f"the labels are {values.shape}, not one per point ({len(pts)})")
+    if values.dtype.kind == "f" and not np.all(np.isfinite(values) & (values == np.round(values))):
+        raise ValueError("the labels must be whole numbers (a leaf's or organ's id), not measurements")
+    values = np.round(values.astype(np.float64)).astype(np.int64)
+    stem = values == stem_label
+    leaf = (values >= 0) & ~stem & ~np.isin(values, list(ignore_labels))
+    leaf_values, leaf_id = np.unique(values[leaf], return_inverse=True)
+    ids = np.full(len(pts), -1, dtype=np.int64)
+    ids[leaf] = leaf_id
+    bases = None
+    if stem.any() and len(leaf_values):
+        tree = cKDTree(pts[stem])
+        leaf_pts = pts[leaf]
+        bases = np.array([leaf_pts[leaf_id == k][int(np.argmin(tree.query(leaf_pts[leaf_id == k])[0]))]
+                          for k in range(len(leaf_values))])
+    plant = ~np.isin(values, list(ignore_labels))
+    measured = measure_labelled_leaves(pts[plant], ids[plant], leaf_bases_m=bases,
+                                       range_noise_m=None if range_noise_m is None else
+                                       np.asarray(range_noise_m)[plant],
+                                       settings=TraitSettings(base_z=base_z))
+    out = measured.to_dict()
+    out["labels"] = [int(leaf_values[k]) for k in measured.labels]
+    out["stem_label"] = int(stem_label)
+    out["ignored_labels"] = sorted(int(v) for v in ignore_labels)
+    out["n_stem_points"] = int(stem.sum())
+    out["measured_from"] = ("each leaf's point nearest a stem point" if bases is not None
+                            else "each leaf's point nearest the turntable's axis (no stem point labelled)")
+    return out
 
 
 def points_to_measure(cloud, *, all_points: bool = False):
@@ -63,6 +129,18 @@ def points_to_measure(cloud, *, all_points: bool = False):
                        "points in it are measured as plant (plantsim scan's .las, .ply and .pcd keep them "
                        "apart; else crop the cloud to the plant)")
     return cloud, f"all {n} points: none is classed as plant"
+
+
+def _measured_mask(cloud, all_points: bool):
+    """Which of the file's points :func:`points_to_measure` keeps."""
+    import numpy as np
+
+    from plantsim.rig.scene import HitClass
+
+    if all_points:
+        return np.ones(len(cloud.points_turntable), dtype=bool)
+    plant = cloud.hit_class == HitClass.PLANT
+    return plant if plant.any() else np.ones(len(cloud.points_turntable), dtype=bool)
 
 
 def read_sidecar(cloud_path: Path, n_points_in_file: int) -> tuple[dict | None, str]:
@@ -123,7 +201,7 @@ def rig_fit_warnings_from_sidecar(meta: dict | None) -> list[str] | None:
 
 
 def cmd_traits(args: argparse.Namespace) -> int:
-    from plantsim.cloud.export import read_cloud
+    from plantsim.cloud.export import read_cloud, read_point_field
 
     if not args.cloud.is_file():
         print(f"plantsim traits: cloud file not found: {args.cloud}", file=sys.stderr)
@@ -132,9 +210,16 @@ def cmd_traits(args: argparse.Namespace) -> int:
         print(f"plantsim traits: --grids must be an odd number >= 1 (a grid then holds the median leaf "
               f"count), got {args.grids}", file=sys.stderr)
         return 2
-    cloud = read_cloud(args.cloud)
-    n_in_file = len(cloud.points_turntable)
-    cloud, measured = points_to_measure(cloud, all_points=args.all_points)
+    full = read_cloud(args.cloud)
+    n_in_file = len(full.points_turntable)
+    labels = None
+    if args.labels is not None:
+        try:
+            labels = read_point_field(args.cloud, args.labels)
+        except ValueError as exc:
+            print(f"plantsim traits: --labels: {exc}", file=sys.stderr)
+            return 2
+    cloud, measured = points_to_measure(full, all_points=args.all_points)
     pts = cloud.points_turntable
     meta, why_no_meta = read_sidecar(args.cloud, n_in_file)
     noise, checked = range_noise_from_sidecar(args.cloud, meta, why_no_meta, cloud)
@@ -146,6 +231,15 @@ def cmd_traits(args: argparse.Namespace) -> int:
         return 2
     out["points_measured"] = measured
     out["leaf_widths_checked_against"] = checked
+    if labels is not None:
+        # The same points as the traits': the file's selection of them.
+        try:
+            out["labelled_leaves"] = {"field": args.labels, **labelled_leaves_dict(
+                pts, labels[_measured_mask(full, args.all_points)], stem_label=args.stem_label,
+                ignore_labels=args.ignore_labels, base_z=args.base_z, range_noise_m=noise)}
+        except ValueError as exc:
+            print(f"plantsim traits: --labels {args.labels}: {exc}", file=sys.stderr)
+            return 2
     # The rig's limits for this plant, said at scan time, bound what the traits can read
     # (leaves seen edge-on read small and merged; a top seen at grazing beams reads low).
     out["scan_rig_fit_warnings"] = rig_warnings
@@ -200,4 +294,9 @@ def cmd_traits(args: argparse.Namespace) -> int:
         for warning in rig_warnings or ():
             print(f"note: the scan's rig (its sidecar): {warning}")
         print(f"leaf widths checked against: {checked}")
+        if labels is not None:
+            lab = out["labelled_leaves"]
+            print(f"labelled leaves ({lab['field']!r}): {lab['leaf_count']} of {len(lab['labels'])} measured, "
+                  f"area {f(lab['leaf_area_m2'], 1e4, ' cm^2')}, each alone from {lab['measured_from']} "
+                  "(traits.measure_labelled_leaves: the measures above, no segmentation)")
     return 0

@@ -1644,7 +1644,8 @@ def measure_labelled_leaves(points_turntable: Any, leaf_label: Any, *, leaf_base
     :func:`plantsim.evaluation.organ_match.leaf_labels_along_beams`). As
     :func:`extract_traits` reads them: the points rounded to a LAS file's grid, those at or
     above ``base_z + ground_clearance`` that the segmentation's outlier removal keeps, at the
-    voxel of the cloud's scale (:func:`plantsim.evaluation.segmentation.kept_points`). Per leaf, its midrib is the
+    voxel of the cloud's scale (:func:`plantsim.evaluation.segmentation.kept_points`; give
+    the plant's points: a sparse soil or pot in the cloud coarsens the voxel). Per leaf, its midrib is the
     centroids of the level sets (four voxels wide, as the segmentation's) of the geodesic
     distance over its own points from its base, the base first
     (:func:`plantsim.evaluation.segmentation._midrib_of`); length, width and area as
