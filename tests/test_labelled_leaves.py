@@ -128,6 +128,12 @@ def test_a_scans_evaluation_measures_its_meshs_labelled_leaves_alone(tmp_path, c
     assert alone["leaf_area_relative_error"] < 0.35
     assert ("the leaf its beam hit" in alone["how"]) is not ideal
     assert f"(its 3 labelled leaves measured alone {alone['leaf_area_relative_error']:.1%})" in printed
+    # The leaves the traits were read from, matched to the labelled ones point by point.
+    matched = evaluation["leaves_matched"]
+    assert matched["seen"] == 3 and matched["found"] == evaluation["n_leaves"][0]
+    assert 0 <= matched["true_positives"] <= min(matched["found"], 3)
+    assert (f"leaves matched {matched['true_positives']} of {matched['found']} found to 3 labelled "
+            f"(PQ {matched['panoptic_quality']:.2f})") in printed
 
 
 def test_a_scan_of_an_unlabelled_mesh_says_its_leaves_were_not_measured_alone(tmp_path, capsys):
@@ -146,6 +152,7 @@ def test_a_scan_of_an_unlabelled_mesh_says_its_leaves_were_not_measured_alone(tm
     evaluation = json.loads((tmp_path / "rosette.las.json").read_text())["evaluation"]["traits"]
     assert evaluation["labelled_leaves_measured_alone"] == {
         "how": "not measured: the mesh labels no leaf (named parts, face labels or colours)"}
+    assert "leaves_matched" not in evaluation
 
 
 def _labelled_plant_points():
@@ -261,3 +268,14 @@ def test_labels_follow_the_points_the_traits_measure(tmp_path):
     assert data["points_measured"].startswith(f"the {(labels != 0).sum()} of {n} points classed as plant")
     assert data["labelled_leaves"]["labels"] == [5, 7]
     assert data["labelled_leaves"]["areas_m2"] == pytest.approx([0.0020, 0.0024], rel=0.02)
+
+
+def test_the_traits_segmentation_is_the_one_segment_for_traits_gives():
+    # The evaluation scores the organs the traits were read from without segmenting twice.
+    pts, labels = _labelled_plant_points()
+    plant = pts[labels != 0]
+    est, seg = traits.traits_and_segmentation(plant)
+    again = traits.segment_for_traits(plant)
+    np.testing.assert_array_equal(seg.points, again.points)
+    np.testing.assert_array_equal(seg.leaf_label, again.leaf_label)
+    assert est.to_dict() == traits.extract_traits(plant).to_dict()

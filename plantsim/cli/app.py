@@ -257,6 +257,11 @@ def _evaluation_line(evaluation) -> str:
             # The leaf area's error were the leaves cut out perfectly: the scan's own limit.
             parts.append(f"leaf area {area.relative_error:.1%} (its {alone.leaf_count} labelled leaves measured "
                          f"alone {abs(alone.leaf_area_m2 - area.reference) / area.reference:.1%})")
+        matched = getattr(evaluation, "leaf_match", None)
+        if matched is not None:
+            # A count can be right with leaves split and others merged.
+            parts.append(f"leaves matched {matched.true_positives} of {matched.found} found to "
+                         f"{matched.seen} labelled (PQ {matched.panoptic_quality:.2f})")
         text += "; trait errors: " + ", ".join(parts)
     return text
 

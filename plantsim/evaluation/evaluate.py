@@ -106,6 +106,9 @@ class Evaluation:
             (:func:`labelled_leaf_mesh`, :func:`plantsim.evaluation.traits.measure_labelled_leaves`),
             or None when the mesh labels no leaf or traits were not compared.
         labelled_leaves_source: how the points were labelled, or why they were not.
+        leaf_match: the leaves the traits were read from matched to those labelled leaves,
+            point by point (:class:`plantsim.evaluation.organ_match.LeafMatch`: a count can
+            be right with leaves split and others merged), or None as ``labelled_leaves``.
     """
 
     n_points: int
@@ -117,6 +120,7 @@ class Evaluation:
     range_noise_source: str | None = None
     labelled_leaves: traits.LabelledLeaves | None = None
     labelled_leaves_source: str | None = None
+    leaf_match: Any = None
 
     def to_dict(self) -> dict[str, Any]:
         """The sidecar's ``evaluation`` object: the metrics' fields at the top level,
@@ -155,6 +159,13 @@ class Evaluation:
                     abs(area - reference) / reference if reference and math.isfinite(area) else None)
                 labelled["how"] = self.labelled_leaves_source
                 out["traits"]["labelled_leaves_measured_alone"] = labelled
+            if self.leaf_match is not None:
+                m = self.leaf_match
+                out["traits"]["leaves_matched"] = metrics._to_jsonable({
+                    "found": m.found, "seen": m.seen, "unseen": m.unseen, "true_positives": m.true_positives,
+                    "false_positives": m.false_positives, "false_negatives": m.false_negatives,
+                    "recognition_quality": m.recognition_quality, "segmentation_quality": m.segmentation_quality,
+                    "panoptic_quality": m.panoptic_quality, "summary": m.summary()})
             elif self.labelled_leaves_source is not None:
                 out["traits"]["labelled_leaves_measured_alone"] = {"how": self.labelled_leaves_source}
         out["time_s"] = self.time_s
@@ -497,17 +508,19 @@ def labelled_leaf_mesh(plant: PlantMesh) -> tuple[np.ndarray, np.ndarray, np.nda
 
 
 def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
-                     settings: traits.TraitSettings | None) -> tuple[traits.LabelledLeaves | None, str]:
-    """The plant file's labelled leaves measured alone from ``pts``, and how the points
-    were labelled; (None, why not) when the file labels no leaf or cannot be read."""
-    from plantsim.evaluation.organ_match import leaf_labels_along_beams, leaf_labels_from_mesh
+                     settings: traits.TraitSettings | None, organs: Any = None) -> tuple[Any, str, Any]:
+    """The plant file's labelled leaves measured alone from ``pts``, how the points were
+    labelled, and the segmentation ``organs`` (the traits', or None) matched to them
+    (:class:`plantsim.evaluation.organ_match.LeafMatch`); (None, why not, None) when the file
+    labels no leaf or cannot be read."""
+    from plantsim.evaluation.organ_match import leaf_labels_along_beams, leaf_labels_from_mesh, match_leaves
 
     try:
         mesh = labelled_leaf_mesh(plant)
     except (ValueError, OSError, KeyError, IndexError) as exc:
-        return None, f"not measured: the mesh's part labels could not be read ({type(exc).__name__}: {exc})"
+        return None, f"not measured: the mesh's part labels could not be read ({type(exc).__name__}: {exc})", None
     if mesh is None:
-        return None, "not measured: the mesh labels no leaf (named parts, face labels or colours)"
+        return None, "not measured: the mesh labels no leaf (named parts, face labels or colours)", None
     vertices, faces, face_leaf, bases = mesh
     noise = None if range_noise_m is None else np.asarray(range_noise_m, dtype=np.float64)
     if noise is not None and np.any(noise):
@@ -520,7 +533,15 @@ def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
         how = f"{len(bases)} leaves labelled in the mesh; each point labelled by its nearest face"
     measured = traits.measure_labelled_leaves(pts, point_leaf, leaf_bases_m=bases, range_noise_m=noise,
                                               settings=settings)
-    return measured, how + "; each leaf measured alone (traits.measure_labelled_leaves)"
+    matched = None
+    if organs is not None:
+        # The segmented points are the cloud's kept ones, on a file's grid: labelled as above.
+        if organs.range_noise_m is not None:
+            truth = leaf_labels_along_beams(organs.points, organs.range_noise_m, vertices, faces, face_leaf)[0]
+        else:
+            truth = leaf_labels_from_mesh(organs.points, vertices, faces, face_leaf)
+        matched = match_leaves(organs.leaf_label, truth, n_true_leaves=len(bases))
+    return measured, how + "; each leaf measured alone (traits.measure_labelled_leaves)", matched
 
 
 # Progress of the trait extraction, in the units of the distance part (one a
@@ -604,7 +625,7 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             if with_traits and workers >= 2 else None)
     try:
         estimate_future = (None if pool is None else
-                           pool.submit(traits.extract_traits, pts, settings=options.trait_settings,
+                           pool.submit(traits.traits_and_segmentation, pts, settings=options.trait_settings,
                                        range_noise_m=range_noise_m))
         measured = metrics.cloud_mesh_metrics(
             pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
@@ -614,7 +635,7 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
     finally:
         if pool is not None:
             pool.shutdown(wait=True)
-    comparison = estimate = None
+    comparison = estimate = organs = None
     if with_traits:
         try:
             truth = labelled if found is None else json.loads(found.read_text(encoding="utf-8"))
@@ -625,17 +646,18 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
                        "%s: %s", found or plant.source, note)
         try:
             reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
-            estimate = (traits.extract_traits(pts, settings=options.trait_settings,
-                                              range_noise_m=range_noise_m)
-                        if estimate_future is None else estimate_future.result())
+            estimate, organs = (traits.traits_and_segmentation(pts, settings=options.trait_settings,
+                                                               range_noise_m=range_noise_m)
+                                if estimate_future is None else estimate_future.result())
             comparison = traits.compare_traits(estimate, reference)
         except (ValueError, KeyError, TypeError) as exc:
             # A truth file in another schema costs the trait comparison, never the scan.
             logger.warning("truth %s not usable for traits, comparison skipped: %s", found, exc)
             comparison = estimate = None
-    leaves_alone, leaves_how = None, None
+    leaves_alone, leaves_how, matched = None, None, None
     if comparison is not None:
-        leaves_alone, leaves_how = _labelled_leaves(pts, plant, range_noise_m, options.trait_settings)
+        leaves_alone, leaves_how, matched = _labelled_leaves(pts, plant, range_noise_m, options.trait_settings,
+                                                             organs)
     if progress is not None:
         progress(total, total)
     if found is None and labelled is not None:
@@ -643,7 +665,7 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
     return Evaluation(n_points=int(len(pts)), metrics=measured, traits=comparison, estimate=estimate,
                       truth_path=str(found) if found else None, time_s=time.perf_counter() - t0,
                       range_noise_source=range_noise_source if with_traits else None,
-                      labelled_leaves=leaves_alone, labelled_leaves_source=leaves_how)
+                      labelled_leaves=leaves_alone, labelled_leaves_source=leaves_how, leaf_match=matched)
 
 
 def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),

@@ -66,7 +66,7 @@ __all__ = [
     "heights_over_grids", "leaf_count_of", "leaf_groups_of", "leaf_length_width", "leaf_noise_width",
     "measure_labelled_leaves", "on_file_grid", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
-    "traits_from_mesh", "traits_from_truth", "true_leaf_groups",
+    "traits_and_segmentation", "traits_from_mesh", "traits_from_truth", "true_leaf_groups",
 ]
 
 _NAN = float("nan")
@@ -1832,6 +1832,14 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
     Returns:
         PlantTraits; NaN where a trait could not be measured, with notes saying why.
     """
+    return traits_and_segmentation(points_turntable, settings=settings, range_noise_m=range_noise_m)[0]
+
+
+def traits_and_segmentation(points_turntable: Any, *, settings: TraitSettings | None = None,
+                            range_noise_m: Any = None) -> tuple[PlantTraits, "segmentation.Segmentation"]:
+    """:func:`extract_traits`' traits, and the segmentation their organs came from (the
+    grid :func:`segment_for_traits` gives): to score the organs against a truth without
+    segmenting twice. Arguments as :func:`extract_traits`'."""
     from plantsim.evaluation import segmentation
 
     s = settings or TraitSettings()
@@ -2084,7 +2092,7 @@ def extract_traits(points_turntable: Any, *, settings: TraitSettings | None = No
         stem_heights_over_grids_m=grid_stem_heights,
         heights_over_grids_m=heights,
         notes=tuple(notes),
-    )
+    ), seg
 
 
 def traits_from_mesh(
