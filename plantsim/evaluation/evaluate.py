@@ -513,7 +513,7 @@ def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
     labelled, and the segmentation ``organs`` (the traits', or None) matched to them
     (:class:`plantsim.evaluation.organ_match.LeafMatch`); (None, why not, None) when the file
     labels no leaf or cannot be read."""
-    from plantsim.evaluation.organ_match import leaf_labels_along_beams, leaf_labels_from_mesh, match_leaves
+    from plantsim.evaluation.organ_match import match_leaves
 
     try:
         mesh = labelled_leaf_mesh(plant)
@@ -523,25 +523,49 @@ def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
         return None, "not measured: the mesh labels no leaf (named parts, face labels or colours)", None
     vertices, faces, face_leaf, bases = mesh
     noise = None if range_noise_m is None else np.asarray(range_noise_m, dtype=np.float64)
-    if noise is not None and np.any(noise):
-        point_leaf, nearest = leaf_labels_along_beams(pts, noise, vertices, faces, face_leaf)
-        how = (f"{len(bases)} leaves labelled in the mesh; each point labelled by the leaf its beam hit "
-               f"(organ_match.leaf_labels_along_beams; {nearest} of {len(pts)} by their nearest face, their "
-               "beam meeting no face within 4 sigma)")
-    else:
-        point_leaf = leaf_labels_from_mesh(pts, vertices, faces, face_leaf)
-        how = f"{len(bases)} leaves labelled in the mesh; each point labelled by its nearest face"
+    noisy = noise is not None and bool(np.any(noise))
+    point_leaf, nearest = _true_leaf_of(pts, noise if noisy else None, plant, vertices, faces, face_leaf)
+    how = (f"{len(bases)} leaves labelled in the mesh; each point labelled by the leaf its beam hit "
+           f"(organ_match.surface_points_along_beams; {nearest} of {len(pts)} by their nearest face, their "
+           "beam meeting no face within 4 sigma)" if noisy else
+           f"{len(bases)} leaves labelled in the mesh; each point labelled by its nearest face")
     measured = traits.measure_labelled_leaves(pts, point_leaf, leaf_bases_m=bases, range_noise_m=noise,
                                               settings=settings)
     matched = None
     if organs is not None:
         # The segmented points are the cloud's kept ones, on a file's grid: labelled as above.
-        if organs.range_noise_m is not None:
-            truth = leaf_labels_along_beams(organs.points, organs.range_noise_m, vertices, faces, face_leaf)[0]
-        else:
-            truth = leaf_labels_from_mesh(organs.points, vertices, faces, face_leaf)
+        truth = _true_leaf_of(organs.points, organs.range_noise_m, plant, vertices, faces, face_leaf)[0]
         matched = match_leaves(organs.leaf_label, truth, n_true_leaves=len(bases))
     return measured, how + "; each leaf measured alone (traits.measure_labelled_leaves)", matched
+
+
+# A point on the placed mesh lies on a labelled part's face when it is this close to it: the
+# parts are the same triangles, read from the same file (float32 rounding in the cast, and a
+# LAS file's 0.01 mm grid, stay far below the millimetres between two organs).
+_ON_PART_M = 2e-5
+
+
+def _true_leaf_of(points: np.ndarray, noise: np.ndarray | None, plant: PlantMesh, vertices: np.ndarray,
+                  faces: np.ndarray, face_leaf: np.ndarray) -> tuple[np.ndarray, int]:
+    """Each point's leaf in the labelled parts (-1 for a stem, or a part the file labels
+    neither, such as a petiole, an ear or a pot), and how many were read at their nearest
+    face rather than where their beam hit. A point's surface is where its beam met the whole
+    placed plant (:func:`plantsim.evaluation.organ_match.surface_points_along_beams`), not
+    only its labelled parts: a beam that hit a petiole is no leaf's; without noise, or where
+    the beam meets no face within 4 sigma (a footprint's edge), the plant's nearest point to
+    it (as :func:`plantsim.evaluation.organ_match.leaf_labels_along_beams` falls back)."""
+    from plantsim.evaluation.organ_match import surface_points_along_beams
+
+    surface = np.full(points.shape, np.nan)
+    if noise is not None and np.any(noise):
+        surface = surface_points_along_beams(points, noise, plant.vertices_turntable, plant.faces)
+    gone = ~np.isfinite(surface[:, 0])
+    if gone.any():
+        surface[gone] = metrics.MeshProximity(plant.vertices_turntable, plant.faces).query(points[gone]).closest_points
+    missed = int(gone.sum()) if noise is not None and np.any(noise) else 0
+    closest = metrics.MeshProximity(vertices, faces).query(surface)
+    on_part = closest.distance <= _ON_PART_M
+    return np.where(on_part, face_leaf[closest.triangle_index], -1), missed
 
 
 # Progress of the trait extraction, in the units of the distance part (one a

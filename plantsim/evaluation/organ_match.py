@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 
 __all__ = ["BEAM_WINDOW_SIGMAS", "LeafMatch", "faces_along_beams", "leaf_labels_along_beams",
-           "leaf_labels_from_mesh", "match_leaves", "match_procedural_leaves", "procedural_leaf_labels"]
+           "leaf_labels_from_mesh", "match_leaves", "match_procedural_leaves", "procedural_leaf_labels",
+           "surface_points_along_beams"]
 
 # Kirillov et al. 2019: IoU above one half makes a match unique.
 MATCH_IOU = 0.5
@@ -189,6 +190,12 @@ def faces_along_beams(points: Any, range_noise_m: Any, vertices: Any, faces: Any
     Raises:
         ValueError: shapes that do not match, a non-finite value, or ``window_sigmas`` not > 0.
     """
+    return _beam_hits(*_checked_beams(points, range_noise_m, vertices, faces, window_sigmas))[0]
+
+
+def _checked_beams(points: Any, range_noise_m: Any, vertices: Any, faces: Any, window_sigmas: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """:func:`faces_along_beams`' arguments as arrays, checked (its Raises)."""
     pts = np.asarray(points, dtype=np.float64)
     noise = np.asarray(range_noise_m, dtype=np.float64)
     verts = np.asarray(vertices, dtype=np.float64)
@@ -203,24 +210,48 @@ def faces_along_beams(points: Any, range_noise_m: Any, vertices: Any, faces: Any
         raise ValueError("points, range_noise_m and vertices must be finite")
     if not (isinstance(window_sigmas, (int, float)) and math.isfinite(window_sigmas) and window_sigmas > 0):
         raise ValueError(f"window_sigmas must be a finite number > 0, got {window_sigmas!r}")
+    return pts, noise, verts, tri, float(window_sigmas)
+
+
+def _beam_hits(pts: np.ndarray, noise: np.ndarray, verts: np.ndarray, tri: np.ndarray,
+               window_sigmas: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`faces_along_beams` on checked arrays, and where each beam meets its face
+    ((n, 3), NaN where it meets none)."""
     from embreex import rtcore_scene
     from embreex.mesh_construction import TriangleMesh
 
     from plantsim.sensor.embree import embreex_mesh_input
 
     out = np.full(len(pts), -1, dtype=np.int64)
+    where = np.full((len(pts), 3), np.nan)
     sigma = np.linalg.norm(noise, axis=1)
     cast = np.flatnonzero(sigma > 0)
     if not len(cast):
-        return out
+        return out, where
     scene = rtcore_scene.EmbreeScene()
     TriangleMesh(scene=scene, **embreex_mesh_input(verts, tri.astype(np.int64)))
     half = window_sigmas * sigma[cast]
     beam = noise[cast] / sigma[cast, None]
-    origins = (pts[cast] - half[:, None] * beam).astype(np.float32)
-    hit = np.asarray(scene.run(origins, beam.astype(np.float32), dists=(2.0 * half).astype(np.float32)))
-    out[cast] = hit.astype(np.int64)
-    return out
+    origins = pts[cast] - half[:, None] * beam
+    found = scene.run(origins.astype(np.float32), beam.astype(np.float32),
+                      dists=(2.0 * half).astype(np.float32), output=1)
+    hit = np.asarray(found["primID"]).astype(np.int64)
+    out[cast] = hit
+    ok = hit >= 0
+    where[cast[ok]] = origins[ok] + np.asarray(found["tfar"], dtype=np.float64)[ok, None] * beam[ok]
+    return out, where
+
+
+def surface_points_along_beams(points: Any, range_noise_m: Any, vertices: Any, faces: Any, *,
+                               window_sigmas: float = BEAM_WINDOW_SIGMAS) -> np.ndarray:
+    """Where each noisy point's beam met the mesh (:func:`faces_along_beams`' face): the
+    point with its range noise taken away; NaN rows where the beam meets no face within
+    the window. Arguments as :func:`faces_along_beams`'.
+
+    Returns:
+        (n, 3) float64, metres.
+    """
+    return _beam_hits(*_checked_beams(points, range_noise_m, vertices, faces, window_sigmas))[1]
 
 
 def leaf_labels_along_beams(points: Any, range_noise_m: Any, vertices: Any, faces: Any, face_leaf: Any, *,
