@@ -288,7 +288,7 @@ def test_points_on_a_part_the_file_labels_neither_leaf_nor_stem_are_no_leaf(tmp_
     # (cast against the labelled parts alone, 22 % of the petiole's points read as a leaf's).
     # The evaluation's labels from the file's parts agree with the generator's own face labels
     # (here the petioles labelled apart), read as the procedural truth reads them.
-    from plantsim.evaluation.evaluate import _true_leaf_of, labelled_leaf_mesh, scan_range_noise
+    from plantsim.evaluation.evaluate import _Proximities, _true_leaf_of, labelled_leaf_mesh, scan_range_noise
     from plantsim.evaluation.organ_match import leaf_labels_along_beams, leaf_labels_from_mesh
     from plantsim.plant.mesh import load_plant, plant_from_arrays
     from plantsim.plant.procedural import PART_LEAF, PART_PETIOLE, make_dicot, to_labelled_obj_bytes
@@ -304,7 +304,7 @@ def test_points_on_a_part_the_file_labels_neither_leaf_nor_stem_are_no_leaf(tmp_
     pts = result.cloud.plant_only().points_turntable
     noise = None if ideal else scan_range_noise(result)[0]
     vertices, faces, face_leaf, _ = labelled_leaf_mesh(placed)
-    labels, _ = _true_leaf_of(pts, noise, placed, vertices, faces, face_leaf)
+    labels, _ = _true_leaf_of(pts, noise, placed, _Proximities(placed, vertices, faces), face_leaf)
     petiole = 1000
     parts = np.where(plant.face_part == PART_LEAF, plant.face_organ,
                      np.where(plant.face_part == PART_PETIOLE, petiole, -1))

@@ -524,7 +524,8 @@ def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
     vertices, faces, face_leaf, bases = mesh
     noise = None if range_noise_m is None else np.asarray(range_noise_m, dtype=np.float64)
     noisy = noise is not None and bool(np.any(noise))
-    point_leaf, nearest = _true_leaf_of(pts, noise if noisy else None, plant, vertices, faces, face_leaf)
+    proximity = _Proximities(plant, vertices, faces)
+    point_leaf, nearest = _true_leaf_of(pts, noise if noisy else None, plant, proximity, face_leaf)
     how = (f"{len(bases)} leaves labelled in the mesh; each point labelled by the leaf its beam hit "
            f"(organ_match.surface_points_along_beams; {nearest} of {len(pts)} by their nearest face, their "
            "beam meeting no face within 4 sigma)" if noisy else
@@ -534,7 +535,7 @@ def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
     matched = None
     if organs is not None:
         # The segmented points are the cloud's kept ones, on a file's grid: labelled as above.
-        truth = _true_leaf_of(organs.points, organs.range_noise_m, plant, vertices, faces, face_leaf)[0]
+        truth = _true_leaf_of(organs.points, organs.range_noise_m, plant, proximity, face_leaf)[0]
         matched = match_leaves(organs.leaf_label, truth, n_true_leaves=len(bases))
     return measured, how + "; each leaf measured alone (traits.measure_labelled_leaves)", matched
 
@@ -545,8 +546,24 @@ def _labelled_leaves(pts: np.ndarray, plant: PlantMesh, range_noise_m: Any,
 _ON_PART_M = 2e-5
 
 
-def _true_leaf_of(points: np.ndarray, noise: np.ndarray | None, plant: PlantMesh, vertices: np.ndarray,
-                  faces: np.ndarray, face_leaf: np.ndarray) -> tuple[np.ndarray, int]:
+class _Proximities:
+    """The exact-distance queries :func:`_true_leaf_of` needs, each built once: the
+    labelled parts' (``parts``) and, when first asked for, the whole placed plant's."""
+
+    def __init__(self, plant: PlantMesh, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self._plant_mesh = plant
+        self.parts = metrics.MeshProximity(vertices, faces)
+        self._plant: metrics.MeshProximity | None = None
+
+    @property
+    def plant(self) -> metrics.MeshProximity:
+        if self._plant is None:
+            self._plant = metrics.MeshProximity(self._plant_mesh.vertices_turntable, self._plant_mesh.faces)
+        return self._plant
+
+
+def _true_leaf_of(points: np.ndarray, noise: np.ndarray | None, plant: PlantMesh, proximity: _Proximities,
+                  face_leaf: np.ndarray) -> tuple[np.ndarray, int]:
     """Each point's leaf in the labelled parts (-1 for a stem, or a part the file labels
     neither, such as a petiole, an ear or a pot), and how many were read at their nearest
     face rather than where their beam hit. A point's surface is where its beam met the whole
@@ -561,9 +578,9 @@ def _true_leaf_of(points: np.ndarray, noise: np.ndarray | None, plant: PlantMesh
         surface = surface_points_along_beams(points, noise, plant.vertices_turntable, plant.faces)
     gone = ~np.isfinite(surface[:, 0])
     if gone.any():
-        surface[gone] = metrics.MeshProximity(plant.vertices_turntable, plant.faces).query(points[gone]).closest_points
+        surface[gone] = proximity.plant.query(points[gone]).closest_points
     missed = int(gone.sum()) if noise is not None and np.any(noise) else 0
-    closest = metrics.MeshProximity(vertices, faces).query(surface)
+    closest = proximity.parts.query(surface)
     on_part = closest.distance <= _ON_PART_M
     return np.where(on_part, face_leaf[closest.triangle_index], -1), missed
 

@@ -1645,9 +1645,9 @@ def measure_labelled_leaves(points_turntable: Any, leaf_label: Any, *, leaf_base
     :func:`extract_traits` reads them: the points rounded to a LAS file's grid, those at or
     above ``base_z + ground_clearance`` that the segmentation's outlier removal keeps, at the
     voxel of the cloud's scale (:func:`plantsim.evaluation.segmentation.kept_points`; give
-    the plant's points: a sparse soil or pot in the cloud coarsens the voxel). Per leaf, its midrib is the
-    centroids of the level sets (four voxels wide, as the segmentation's) of the geodesic
-    distance over its own points from its base, the base first
+    the plant's points: a sparse soil or pot in the cloud coarsens the voxel). Per leaf, its
+    midrib is the centroids of the level sets (four voxels wide, as the segmentation's) of
+    the geodesic distance over its own points from its base, the base first
     (:func:`plantsim.evaluation.segmentation._midrib_of`); length, width and area as
     :func:`extract_traits`' leaves (the ribbon between the margins, widths read across the
     beams given the range noise). A leaf with under :data:`LABELLED_LEAF_MIN_POINTS`
