@@ -318,3 +318,15 @@ def test_points_on_a_part_the_file_labels_neither_leaf_nor_stem_are_no_leaf(tmp_
     pairs = {(int(a), int(b)) for a, b in zip(labels[on_leaf], truth[on_leaf])}
     assert len(pairs) == 3 and len({a for a, _ in pairs}) == 3
     assert np.mean((labels < 0) == (truth < 0) | on_petiole) > 0.99
+
+
+def test_label_options_without_labels_are_refused(tmp_path, capsys):
+    # Nothing is silently ignored: --stem-label and --ignore-labels only say how to read --labels.
+    from plantsim.cli.app import main
+
+    pts, labels = _labelled_plant_points()
+    path = tmp_path / "plant.txt"
+    np.savetxt(path, np.column_stack([pts, labels]), fmt="%.6f %.6f %.6f %d")
+    for extra in (["--stem-label", "1"], ["--ignore-labels", "0"]):
+        assert main(["traits", str(path)] + extra) == 2
+        assert "give --labels too, or drop them" in capsys.readouterr().err

@@ -121,18 +121,21 @@ def points_to_measure(cloud, *, all_points: bool = False):
     n = len(cloud.points_turntable)
     if all_points:
         return cloud, f"all {n} points (--all-points)"
-    plant = cloud.plant_only()
-    if len(plant.points_turntable):
-        return plant, f"the {len(plant.points_turntable)} of {n} points classed as plant (--all-points: every point)"
+    mask = _measured_mask(cloud, all_points)
+    if not mask.all():
+        return cloud.select(mask), f"the {int(mask.sum())} of {n} points classed as plant (--all-points: every point)"
     if bool((cloud.hit_class == HitClass.NONE).all()):
         return cloud, (f"all {n} points: the file carries no point classes, so any turntable, rig or soil "
                        "points in it are measured as plant (plantsim scan's .las, .ply and .pcd keep them "
                        "apart; else crop the cloud to the plant)")
+    if (cloud.hit_class == HitClass.PLANT).all():
+        return cloud, f"the {n} of {n} points classed as plant (--all-points: every point)"
     return cloud, f"all {n} points: none is classed as plant"
 
 
 def _measured_mask(cloud, all_points: bool):
-    """Which of the file's points :func:`points_to_measure` keeps."""
+    """Which of the file's points :func:`points_to_measure` keeps: the plant-class ones,
+    or every one (``all_points``, or none classed as plant)."""
     import numpy as np
 
     from plantsim.rig.scene import HitClass
@@ -205,6 +208,11 @@ def cmd_traits(args: argparse.Namespace) -> int:
 
     if not args.cloud.is_file():
         print(f"plantsim traits: cloud file not found: {args.cloud}", file=sys.stderr)
+        return 2
+    if args.labels is None and (args.stem_label != 0 or args.ignore_labels):
+        # Nothing is silently ignored: these say how to read --labels.
+        print("plantsim traits: --stem-label and --ignore-labels say how to read --labels FIELD; "
+              "give --labels too, or drop them", file=sys.stderr)
         return 2
     if args.grids < 1 or args.grids % 2 == 0:
         print(f"plantsim traits: --grids must be an odd number >= 1 (a grid then holds the median leaf "
