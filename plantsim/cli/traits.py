@@ -73,9 +73,8 @@ def labelled_leaves_dict(points_turntable, labels, *, stem_label: int = 0, ignor
         ValueError: labels that are not whole numbers, or not one per point.
     """
     import numpy as np
-    from scipy.spatial import cKDTree
 
-    from plantsim.evaluation.traits import TraitSettings, measure_labelled_leaves
+    from plantsim.evaluation.traits import TraitSettings, leaf_bases_at_stem, measure_labelled_leaves
 
     pts = np.asarray(points_turntable, dtype=np.float64)
     values = np.asarray(labels)
@@ -89,12 +88,7 @@ def labelled_leaves_dict(points_turntable, labels, *, stem_label: int = 0, ignor
     leaf_values, leaf_id = np.unique(values[leaf], return_inverse=True)
     ids = np.full(len(pts), -1, dtype=np.int64)
     ids[leaf] = leaf_id
-    bases = None
-    if stem.any() and len(leaf_values):
-        tree = cKDTree(pts[stem])
-        leaf_pts = pts[leaf]
-        bases = np.array([leaf_pts[leaf_id == k][int(np.argmin(tree.query(leaf_pts[leaf_id == k])[0]))]
-                          for k in range(len(leaf_values))])
+    bases = leaf_bases_at_stem(pts, ids, pts[stem])
     plant = ~np.isin(values, list(ignore_labels))
     measured = measure_labelled_leaves(pts[plant], ids[plant], leaf_bases_m=bases,
                                        range_noise_m=None if range_noise_m is None else

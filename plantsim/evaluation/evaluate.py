@@ -160,12 +160,8 @@ class Evaluation:
                 labelled["how"] = self.labelled_leaves_source
                 out["traits"]["labelled_leaves_measured_alone"] = labelled
             if self.leaf_match is not None:
-                m = self.leaf_match
-                out["traits"]["leaves_matched"] = metrics._to_jsonable({
-                    "found": m.found, "seen": m.seen, "unseen": m.unseen, "true_positives": m.true_positives,
-                    "false_positives": m.false_positives, "false_negatives": m.false_negatives,
-                    "recognition_quality": m.recognition_quality, "segmentation_quality": m.segmentation_quality,
-                    "panoptic_quality": m.panoptic_quality, "summary": m.summary()})
+                fields = {k: v for k, v in dataclasses.asdict(self.leaf_match).items() if k != "pairs"}
+                out["traits"]["leaves_matched"] = metrics._to_jsonable({**fields, "summary": self.leaf_match.summary()})
             elif self.labelled_leaves_source is not None:
                 out["traits"]["labelled_leaves_measured_alone"] = {"how": self.labelled_leaves_source}
         out["time_s"] = self.time_s
@@ -473,8 +469,6 @@ def labelled_leaf_mesh(plant: PlantMesh) -> tuple[np.ndarray, np.ndarray, np.nda
     Raises:
         ValueError, OSError: a file whose labels cannot be read.
     """
-    from scipy.spatial import cKDTree
-
     from plantsim.plant.mesh import UNITS_TO_M
     from plantsim.transforms import apply_T
 
@@ -485,7 +479,7 @@ def labelled_leaf_mesh(plant: PlantMesh) -> tuple[np.ndarray, np.ndarray, np.nda
     if not any(p.kind == "leaf" for p in parts):
         return None
     scale = UNITS_TO_M.get(plant.units, 1.0)
-    vertices, faces, face_leaf, leaf_vertices, stem_vertices = [], [], [], [], []
+    vertices, faces, face_leaf, leaf_vertices, stem_vertices = [], [], [], [], [np.zeros((0, 3))]
     offset = 0
     for p in parts:
         used = np.unique(p.faces)
@@ -499,10 +493,9 @@ def labelled_leaf_mesh(plant: PlantMesh) -> tuple[np.ndarray, np.ndarray, np.nda
         else:
             face_leaf.append(np.full(len(p.faces), -1, dtype=np.int64))
             stem_vertices.append(v[used])
-    if stem_vertices:
-        tree = cKDTree(np.vstack(stem_vertices))
-        bases = np.array([lv[int(np.argmin(tree.query(lv)[0]))] for lv in leaf_vertices])
-    else:
+    vertex_leaf = np.concatenate([np.full(len(lv), k) for k, lv in enumerate(leaf_vertices)])
+    bases = traits.leaf_bases_at_stem(np.vstack(leaf_vertices), vertex_leaf, np.vstack(stem_vertices))
+    if bases is None:
         bases = np.array([lv[int(np.argmin(np.hypot(lv[:, 0], lv[:, 1])))] for lv in leaf_vertices])
     return np.vstack(vertices), np.vstack(faces), np.concatenate(face_leaf), bases
 

@@ -63,8 +63,8 @@ __all__ = [
     "CircleFit", "LabelledLeaves", "Leaf", "PlantTraits", "Stem", "StemDistance", "TraitComparison", "TraitError",
     "TraitSettings", "across_beam_width", "axis_crowding", "beam_median_points", "compare_traits", "connected_components",
     "convex_hull_volume", "encircling_leaves", "estimate_stems", "extract_traits", "fit_circle",
-    "heights_over_grids", "leaf_count_of", "leaf_groups_of", "leaf_length_width", "leaf_noise_width",
-    "measure_labelled_leaves", "on_file_grid", "plant_height",
+    "heights_over_grids", "leaf_bases_at_stem", "leaf_count_of", "leaf_groups_of", "leaf_length_width",
+    "leaf_noise_width", "measure_labelled_leaves", "on_file_grid", "plant_height",
     "projected_area_xy", "robust_height", "segment_for_traits", "stem_distances", "top_voxel_min_points", "trait_error",
     "traits_and_segmentation", "traits_from_mesh", "traits_from_truth", "true_leaf_groups",
 ]
@@ -1628,6 +1628,30 @@ class LabelledLeaves:
                                      "lengths_m": list(self.lengths_m), "widths_m": list(self.widths_m),
                                      "areas_m2": list(self.areas_m2),
                                      "widths_resolved": list(self.widths_resolved)})
+
+
+def leaf_bases_at_stem(points: Any, leaf_label: Any, stem_points: Any) -> np.ndarray | None:
+    """Where each labelled leaf meets its stem: per label 0..k-1 (as
+    :func:`measure_labelled_leaves` takes ``leaf_bases_m``), the leaf's point nearest any of
+    ``stem_points``; None with no stem point (the measure then starts each leaf nearest the
+    turntable's axis) or no leaf.
+
+    Args:
+        points: (n, 3) float64, metres.
+        leaf_label: (n,) int, each point's leaf 0..k-1, or -1 for none.
+        stem_points: (m, 3) float64, metres (m may be 0).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    labels = np.asarray(leaf_label, dtype=np.int64)
+    stem = np.asarray(stem_points, dtype=np.float64).reshape(-1, 3)
+    if not len(stem) or not (labels >= 0).any():
+        return None
+    gap = cKDTree(stem).query(pts)[0]
+    bases = np.full((int(labels.max()) + 1, 3), np.nan)
+    for k in np.unique(labels[labels >= 0]):
+        own = np.flatnonzero(labels == k)
+        bases[k] = pts[own[int(np.argmin(gap[own]))]]
+    return bases
 
 
 # A labelled leaf is measured from this many points up (measure_labelled_leaves).
