@@ -120,6 +120,17 @@ modeling of laser-scanned trees", ACM TOG 26(4):19) and Delagrange et al. (2014,
    junction is a leaflet at the end of a stalk, not a leaf. The 30-leaf rosette reads
    21 leaves for 30 (15 before), 11 of its 23 laminae 60 % or more one true leaf's (7
    of 16). A noisy scan's reach is its noise's: step 10 reads those.
+12. Cups by their surfaces, on a clean scan, after step 11: touching leaves meet at a
+   crease, and a cup's points fall into smooth surfaces there by region growing with a
+   smoothness constraint (Rabbani et al. 2006), the pieces of one leaf that the leaves
+   in front of it cut apart joined where one quadric fits them as closely as each alone;
+   each surface as long as a leaf, starting near the cup's base and reaching out from
+   the axis, is a leaf (:func:`_split_smooth_surfaces`). The ideal 30-leaf rosette reads
+   25 leaves for 30 (21 before; 17-31 over the grids), the 12-leaf one 14 (12), with 8 and
+   9 laminae matched to a true leaf (3 and 6).
+13. Fragments, on a clean scan: a found leaf with fewer nodes a spacing apart than a strip
+   two nodes wide and a leaf long is no leaf's surface but a piece of the leaf it touches
+   most, and joins it (:func:`_join_fragments`).
 
 Validity: plants with thin stems and strap or broad leaves attached to them
 (cereals, maize, seedlings), turntable frame with z up and the base at ``base_z``.
@@ -1233,6 +1244,11 @@ class Segmentation:
             the range noise.
         petal_split_leaves: leaves found by splitting a cup of touching leaves round
             the axis at its tips (:func:`_split_petals`; step 11): 0 on a noisy scan.
+        surface_split_leaves: leaves found by splitting a cup of touching leaves at
+            the creases where their smooth surfaces meet (:func:`_split_smooth_surfaces`;
+            step 12): 0 on a noisy scan.
+        joined_leaves: found leaves too small for a leaf's surface, joined to the leaf
+            they touch most (:func:`_join_fragments`; step 13): 0 on a noisy scan.
         stem_beam_top_refusals: per stem, why the beams through the turntable's axis
             do not end it (:func:`beam_stem_top`), one clause; '' where they do, or
             where its rings are resolved and the walk follows them. Where they do not,
@@ -1263,6 +1279,8 @@ class Segmentation:
     stem_walk_tops_z_m: tuple[float, ...] = ()
     axis_split_leaves: int = 0
     petal_split_leaves: int = 0
+    surface_split_leaves: int = 0
+    joined_leaves: int = 0
     stem_beam_top_refusals: tuple[str, ...] = ()
     stem_tops_in_cup: tuple[bool, ...] = ()
     range_noise_m: np.ndarray | None = None
@@ -2356,7 +2374,7 @@ def _sector_owner(phi_part: np.ndarray, phi_others: np.ndarray, label_others: np
 def _apply_split(leaf_label: np.ndarray, midribs: list[np.ndarray], groups: list[int],
                  base_widths: dict[int, np.ndarray], li: int, member: np.ndarray, part: np.ndarray,
                  owner: np.ndarray, new: np.ndarray, ribs: list[np.ndarray]) -> int:
-    """Split leaf ``li`` in place (steps 10 and 11): its points ``member`` by ``part``;
+    """Split leaf ``li`` in place (steps 10 to 12): its points ``member`` by ``part``;
     the parts with an ``owner`` go to that leaf, the parts ``new`` (with midribs
     ``ribs``) are leaves, the first keeping ``li``, each other a new leaf of its own. The
     merged leaf's base widths were not its parts': they go. Returns the leaves added."""
@@ -2626,6 +2644,264 @@ def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndar
                      li, len(new))
         added += _apply_split(leaf_label, midribs, groups, base_widths, li, member, part, owner, new, ribs)
     return leaf_label, midribs, tuple(groups), base_widths, added
+
+
+# Step 12, cups by their smooth surfaces (clean scans, after step 11). Region growing with
+# a smoothness constraint (Rabbani, van den Heuvel and Vosselman 2006, "Segmentation of
+# point clouds using smoothness constraint", IAPRS 36(5):248-253) on nodes a point spacing
+# apart: neighbours join a region while their normals (PCA within SMOOTH_NORMAL_SPACINGS)
+# turn by under SMOOTH_ANGLE_DEG, and the region grows on from the nodes flatter than the
+# SMOOTH_SEED_PERCENTILE of curvature (a crease's nodes join a region but do not carry it
+# over the crease). Touching leaves meet at a crease, so their surfaces part where the
+# level sets and the reach's lobes (step 11) do not. A leaf that a leaf in front hides in
+# bands falls into pieces, each as smooth as the leaf, that one quadric height field fits
+# as closely as each alone (:func:`quadric_rms`): regions of SMOOTH_SEED_NODES or more,
+# within a leaf's length of each other, whose joint fit's RMS lies within
+# SMOOTH_JOIN_SPACINGS of a spacing of their own pooled are one surface. On the ideal
+# 8-leaf rosette (seed 3) a leaf's pieces fit jointly within 0.02-0.07 mm of their own,
+# neighbouring leaves 0.3-1.9 mm apart, at a 1.6 mm spacing. A part is a leaf when it is
+# as long as a leaf, a surface (as many points as spacings along its reach, and
+# SMOOTH_WIDTH_NODES nodes per spacing of it), starts within SMOOTH_START_SHARE of its
+# reach of the leaf's nearest point to the junction (a rosette's inner leaves, hidden near
+# the crown and the junction the walk's top above it, show from 0-0.4 of their reach; a
+# trifoliate's side leaflets from 0.55-0.86), and reaches out from the axis (its 95th
+# percentile radius SMOOTH_SPREAD_SHARE of its reach or more: a blade rising 60 deg, 0.5;
+# round its stem, 0.3). Then (step 13) a found leaf with fewer nodes than a strip
+# SMOOTH_WIDTH_NODES wide and a leaf long is a fragment of the leaf it touches most.
+SMOOTH_ANGLE_DEG = 10.0
+SMOOTH_NORMAL_SPACINGS = 2.5
+SMOOTH_SEED_PERCENTILE = 90.0
+SMOOTH_SEED_NODES = 10
+SMOOTH_JOIN_SPACINGS = 0.1
+SMOOTH_START_SHARE = 0.45
+SMOOTH_SPREAD_SHARE = 0.4
+SMOOTH_WIDTH_NODES = 2.0
+
+
+def quadric_rms(points: np.ndarray) -> float:
+    """RMS distance of ``points`` ((n, 3), metres) from the quadric height field
+    ``h = a + b x + c y + d x^2 + e x y + f y^2`` fitted by least squares in their
+    principal frame (``h`` along the least principal axis): a smooth surface's pieces
+    fit one such field as closely as each alone, two surfaces meeting at a crease or
+    stacked apart do not. Infinite for fewer than 8 points (no residual to read)."""
+    if len(points) < 8:
+        return math.inf
+    q = points - points.mean(axis=0)
+    axes = np.linalg.eigh(q.T @ q)[1]
+    x, y, h = q @ axes[:, 2], q @ axes[:, 1], q @ axes[:, 0]
+    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+    coef = np.linalg.lstsq(design, h, rcond=None)[0]
+    return float(np.sqrt(np.mean((design @ coef - h) ** 2)))
+
+
+def _smooth_regions(points: np.ndarray, spacing: float, *, min_nodes: int, reach: float) -> np.ndarray:
+    """Each point's smooth-surface region (step 12): region growing on nodes a spacing
+    apart, the regions that are pieces of one surface (within ``reach`` of each other)
+    joined (:func:`_join_region_pieces`), regions under ``min_nodes`` nodes given to the
+    region they touch most (or the nearest). Returns (n,) int64 labels 0..k-1."""
+    nodes, inverse = voxel_centroids(points, spacing)
+    n = len(nodes)
+    if n < 2:
+        return np.zeros(len(points), dtype=np.int64)
+    tree = cKDTree(nodes)
+    # Normals and curvature (PCA) of each node's neighbours within the radius, at most
+    # 32 of them (a disc of 2.5 spacings holds about 20).
+    dist, near = tree.query(nodes, k=min(32, n), distance_upper_bound=SMOOTH_NORMAL_SPACINGS * spacing)
+    dist, near = dist.reshape(n, -1), near.reshape(n, -1)
+    weight = np.isfinite(dist).astype(np.float64)
+    count = weight.sum(axis=1)
+    gathered = np.concatenate([nodes, np.zeros((1, 3))])[np.minimum(near, n)]
+    mean = (gathered * weight[:, :, None]).sum(axis=1) / count[:, None]
+    q = (gathered - mean[:, None, :]) * weight[:, :, None]
+    w, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", q, q))
+    normals = vec[:, :, 0]
+    curvature = np.where(count >= 4, w[:, 0] / np.maximum(w.sum(axis=1), 1e-300), 1.0)
+    adjacent = tree.query_ball_point(nodes, 1.5 * spacing)
+    cos_max = math.cos(math.radians(SMOOTH_ANGLE_DEG))
+    flat = curvature <= np.percentile(curvature, SMOOTH_SEED_PERCENTILE)
+    region = np.full(n, -1, dtype=np.int64)
+    grown = 0
+    for seed in np.argsort(curvature, kind="stable"):
+        if region[seed] >= 0:
+            continue
+        region[seed] = grown
+        front = [int(seed)]
+        while front:
+            i = front.pop()
+            for j in adjacent[i]:
+                if region[j] < 0 and abs(float(normals[i] @ normals[j])) >= cos_max:
+                    region[j] = grown
+                    if flat[j]:
+                        front.append(j)
+        grown += 1
+    region = _join_region_pieces(nodes, region, spacing=spacing, reach=reach)
+    # Small regions (a crease's nodes, a leaf's edge) go to the region they touch most.
+    for _ in range(n):
+        size = np.bincount(region)
+        votes: dict[int, dict[int, int]] = {}
+        for i in np.flatnonzero(size[region] < min_nodes):
+            for j in adjacent[i]:
+                if size[region[j]] >= min_nodes:
+                    tally = votes.setdefault(int(region[i]), {})
+                    tally[int(region[j])] = tally.get(int(region[j]), 0) + 1
+        if not votes:
+            break
+        for r, tally in votes.items():
+            region[region == r] = max(tally, key=tally.get)
+    size = np.bincount(region)
+    big = size[region] >= min_nodes
+    if not big.any():
+        return np.zeros(len(points), dtype=np.int64)
+    if not big.all():
+        region[~big] = region[big][cKDTree(nodes[big]).query(nodes[~big])[1]]
+    return np.unique(region, return_inverse=True)[1].ravel()[inverse]
+
+
+def _join_region_pieces(nodes: np.ndarray, region: np.ndarray, *, spacing: float, reach: float) -> np.ndarray:
+    """Join the regions of :data:`SMOOTH_SEED_NODES` nodes or more, within ``reach`` of
+    each other, whose joint quadric fit (:func:`quadric_rms`) lies within
+    :data:`SMOOTH_JOIN_SPACINGS` of a spacing of their own fits' pooled RMS: the closest
+    fitting pair first, until none is left (step 12). Returns the region labels."""
+    region = region.copy()
+    size = np.bincount(region)
+    member = {int(r): np.flatnonzero(region == r) for r in np.flatnonzero(size >= SMOOTH_SEED_NODES)}
+    if len(member) < 2:
+        return region
+    keys = np.array(sorted(member))
+    lo = np.array([nodes[member[k]].min(axis=0) for k in keys])
+    hi = np.array([nodes[member[k]].max(axis=0) for k in keys])
+    boxes = np.all((lo[:, None, :] <= hi[None, :, :] + reach) & (lo[None, :, :] <= hi[:, None, :] + reach), axis=2)
+    trees = {int(k): cKDTree(nodes[member[int(k)]]) for k in keys}
+    rms = {r: quadric_rms(nodes[m]) for r, m in member.items()}
+    tol = SMOOTH_JOIN_SPACINGS * spacing
+
+    def excess(a: int, b: int) -> float:
+        ma, mb = member[a], member[b]
+        pooled = math.sqrt((len(ma) * rms[a] ** 2 + len(mb) * rms[b] ** 2) / (len(ma) + len(mb)))
+        return quadric_rms(nodes[np.concatenate([ma, mb])]) - pooled - tol
+
+    cost = {}
+    for i, j in zip(*np.nonzero(np.triu(boxes, 1))):
+        a, b = int(keys[i]), int(keys[j])
+        small, big = (a, b) if len(member[a]) <= len(member[b]) else (b, a)
+        if np.isfinite(trees[big].query(nodes[member[small]], distance_upper_bound=reach)[0]).any():
+            cost[(a, b)] = excess(a, b)
+    while cost:
+        (a, b), worst = min(cost.items(), key=lambda kv: kv[1])
+        if worst > 0:
+            break
+        member[a] = np.concatenate([member[a], member.pop(b)])
+        rms[a] = quadric_rms(nodes[member[a]])
+        rms.pop(b)
+        region[region == b] = a
+        touched = {r for pair in cost if a in pair or b in pair for r in pair} - {a, b}
+        cost = {pair: c for pair, c in cost.items() if a not in pair and b not in pair}
+        for r in touched:
+            cost[(min(a, r), max(a, r))] = excess(min(a, r), max(a, r))
+    return region
+
+
+def _split_smooth_surfaces(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray],
+                           groups: tuple[int, ...], base_widths: dict[int, np.ndarray], *, cell: float,
+                           bin_w: float, min_leaf: float, spacing: float,
+                           grid_offset: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+                           ) -> tuple[np.ndarray, list[np.ndarray], tuple[int, ...], dict[int, np.ndarray], int]:
+    """Split the cups that are touching leaves' smooth surfaces meeting at creases (step
+    12; clean scans). Returns the leaf labels, midribs, groups and base widths, and the
+    number of leaves the splits added.
+
+    A leaf is a cup, as step 11 reads one, when its outer half spans
+    :data:`PETAL_MIN_ARC_DEG` round the axis. Its points fall into smooth-surface
+    regions (:func:`_smooth_regions`; regions under a leaf's length of
+    :data:`SMOOTH_WIDTH_NODES`-node strips go to their neighbours). A region is a leaf
+    of its own when it is as long as a leaf (its midrib from the junction,
+    :func:`_midrib_of`), a surface, starts within :data:`SMOOTH_START_SHARE` of its reach
+    of the cup's nearest point to the junction and reaches out from the axis
+    (:data:`SMOOTH_SPREAD_SHARE`); the other regions go with the leaf nearest in
+    azimuth. A cup splits only into two leaves or more."""
+    leaf_label = leaf_label.copy()
+    midribs = list(midribs)
+    groups_l = list(groups) if groups else list(range(len(midribs)))
+    base_widths = dict(base_widths)
+    r_all = np.hypot(pts[:, 0], pts[:, 1])
+    phi_all = np.arctan2(pts[:, 1], pts[:, 0])
+    min_nodes = int(SMOOTH_WIDTH_NODES * min_leaf / spacing)
+    added = 0
+    for li in range(len(midribs)):
+        member = np.flatnonzero(leaf_label == li)
+        junction = midribs[li][0]
+        outer = r_all[member] > float(np.hypot(junction[0], junction[1])) + cell
+        if np.count_nonzero(outer) < 20:
+            continue
+        r_out, phi_out = r_all[member[outer]], phi_all[member[outer]]
+        r_median = float(np.median(r_out))
+        n_bins = max(int(2 * math.pi * r_median / cell), 8)
+        b = np.floor((phi_out % (2 * math.pi)) / (2 * math.pi / n_bins)).astype(np.int64) % n_bins
+        if len(np.unique(b[r_out >= r_median])) * 360.0 / n_bins < PETAL_MIN_ARC_DEG:
+            continue
+        part = _smooth_regions(pts[member], spacing, min_nodes=min_nodes, reach=min_leaf)
+        n_p = int(part.max()) + 1
+        if n_p < 2:
+            continue
+        d = np.linalg.norm(pts[member] - junction, axis=1)
+        d_min = float(d[outer].min())
+        ribs = [_midrib_of(pts[member[part == k]], junction, cell=cell, bin_w=bin_w, grid_offset=grid_offset)
+                for k in range(n_p)]
+        leaf_like = np.zeros(n_p, dtype=bool)
+        for k in range(n_p):
+            mine = part == k
+            reach = float(d[mine].max())
+            start = float(np.percentile(d[mine & outer], PETAL_START_PERCENTILE)) if (mine & outer).any() else math.inf
+            leaf_like[k] = (float(np.linalg.norm(np.diff(ribs[k], axis=0), axis=1).sum()) >= min_leaf
+                            and start <= d_min + SMOOTH_START_SHARE * reach
+                            and np.count_nonzero(mine) * spacing >= reach
+                            and len(voxel_centroids(pts[member[mine]], spacing)[0]) >= SMOOTH_WIDTH_NODES * reach / spacing
+                            and float(np.percentile(r_all[member[mine]], 95)) >= SMOOTH_SPREAD_SHARE * reach)
+        new = np.flatnonzero(leaf_like)
+        if len(new) < 2:
+            continue
+        centre = np.array([_mean_azimuth(phi_all[member[part == k]]) for k in range(n_p)])
+        for k in np.flatnonzero(~leaf_like):
+            gap = np.abs((centre[new] - centre[k] + math.pi) % (2 * math.pi) - math.pi)
+            part[part == k] = new[int(np.argmin(gap))]
+        logger.debug("segmentation: leaf %d is a cup of %d smooth surfaces meeting at creases, split", li, len(new))
+        added += _apply_split(leaf_label, midribs, groups_l, base_widths, li, member, part,
+                              np.full(n_p, -1, dtype=np.int64), new, [ribs[k] for k in new])
+    return leaf_label, midribs, tuple(groups_l), base_widths, added
+
+
+def _join_fragments(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray], groups: tuple[int, ...],
+                    base_widths: dict[int, np.ndarray], *, min_leaf: float, spacing: float
+                    ) -> tuple[np.ndarray, list[np.ndarray], tuple[int, ...], dict[int, np.ndarray], int]:
+    """Give each found leaf too small to be a leaf's surface to the leaf it touches most
+    (step 13; clean scans): fewer nodes a spacing apart than a strip
+    :data:`SMOOTH_WIDTH_NODES` nodes wide and a leaf long, and nodes of a larger leaf
+    within two spacings (a fragment left alone stays). Returns the leaf labels, midribs,
+    groups and base widths (the larger leaf's), and the number of fragments joined."""
+    n = len(midribs)
+    nodes = [voxel_centroids(pts[leaf_label == i], spacing)[0] for i in range(n)]
+    size = np.array([len(m) for m in nodes])
+    whole = np.flatnonzero(size >= int(SMOOTH_WIDTH_NODES * min_leaf / spacing))
+    into = np.arange(n)
+    if n < 2 or not len(whole) or len(whole) == n:
+        return leaf_label, list(midribs), groups, base_widths, 0
+    owner = np.concatenate([np.full(size[k], k) for k in whole])
+    tree = cKDTree(np.vstack([nodes[k] for k in whole]))
+    for k in np.setdiff1d(np.arange(n), whole):
+        d, j = tree.query(nodes[k], distance_upper_bound=2.0 * spacing)
+        if np.isfinite(d).any():
+            into[k] = int(np.bincount(owner[j[np.isfinite(d)]]).argmax())
+    keep = np.unique(into)
+    if len(keep) == n:
+        return leaf_label, list(midribs), groups, base_widths, 0
+    new_of = np.full(n, -1, dtype=np.int64)
+    new_of[keep] = np.arange(len(keep))
+    label = np.where(leaf_label >= 0, new_of[into[np.maximum(leaf_label, 0)]], -1)
+    groups_l = list(groups) if groups else list(range(n))
+    new_groups = np.unique([groups_l[k] for k in keep], return_inverse=True)[1].ravel()
+    widths = {int(new_of[k]): w for k, w in base_widths.items() if into[k] == k}
+    logger.debug("segmentation: %d found leaves too small for a leaf joined the leaves they touch", n - len(keep))
+    return label, [midribs[k] for k in keep], tuple(int(g) for g in new_groups), widths, n - len(keep)
 
 
 def _remap_parents(old_label: np.ndarray, new_label: np.ndarray, old_parent: list[int],
@@ -3065,6 +3341,13 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
         leaf_label, midribs, groups, base_widths, n_petals = _split_petals(
             pts, leaf_label, midribs, groups, base_widths, cell=v, bin_w=bin_w, min_leaf=min_leaf,
             spacing=scale.spacing_m, grid_offset=s.grid_offset)
+    n_surface_split = n_joined = 0
+    if midribs and (noise is None or not np.any(noise)) and scale.noise_m <= 0.5 * scale.spacing_m:
+        leaf_label, midribs, groups, base_widths, n_surface_split = _split_smooth_surfaces(
+            pts, leaf_label, midribs, groups, base_widths, cell=v, bin_w=bin_w, min_leaf=min_leaf,
+            spacing=scale.spacing_m, grid_offset=s.grid_offset)
+        leaf_label, midribs, groups, base_widths, n_joined = _join_fragments(
+            pts, leaf_label, midribs, groups, base_widths, min_leaf=min_leaf, spacing=scale.spacing_m)
     logger.info("segmentation: %d points, spacing %.3g mm, noise %.3g mm, voxel %.3g mm, "
                 "%d skeleton nodes, %d stems, %d leaves", len(pts), 1e3 * scale.spacing_m,
                 1e3 * scale.noise_m, 1e3 * v, n_pieces, len(stems), len(midribs))
@@ -3073,6 +3356,7 @@ def _segment_on_grid(pts: np.ndarray, kept: np.ndarray, scale: CloudScale, stems
                         leaf_midribs=tuple(midribs), scale=scale, min_leaf_length_m=float(min_leaf),
                         link_m=float(s.link_factor * v), sparse_branches=n_sparse,
                         leaf_group=groups, stem_noise_branches=n_stem_noise, axis_split_leaves=n_axis_split,
-                        petal_split_leaves=n_petals,
+                        petal_split_leaves=n_petals, surface_split_leaves=n_surface_split,
+                        joined_leaves=n_joined,
                         leaf_base_widths_m=tuple(base_widths.get(i, np.zeros(0)) for i in range(len(midribs))),
                         stem_walk_tops_z_m=tuple(walk_top_z))

@@ -1991,6 +1991,16 @@ def traits_and_segmentation(points_turntable: Any, *, settings: TraitSettings | 
         notes.append(f"{n} lea{'ves' if n > 1 else 'f'} found by splitting a cup of touching leaves round the "
                      "axis at their tips: where the level sets held them as one, the farthest reach of its "
                      "points round the axis had a lobe per leaf (segmentation._split_petals)")
+    if seg.surface_split_leaves:
+        n = seg.surface_split_leaves
+        notes.append(f"{n} lea{'ves' if n > 1 else 'f'} found by splitting a cup of touching leaves round the "
+                     "axis where their smooth surfaces meet at a crease (region growing with a smoothness "
+                     "constraint, pieces one quadric fits joined; segmentation._split_smooth_surfaces)")
+    if seg.joined_leaves:
+        n = seg.joined_leaves
+        notes.append(f"{n} found lea{'ves' if n > 1 else 'f'} too small for a leaf's surface (fewer points a "
+                     f"spacing apart than a strip {segmentation.SMOOTH_WIDTH_NODES:g} wide and a leaf long) "
+                     "joined to the leaf they touch most, not counted (segmentation._join_fragments)")
     ramped = sum(1 for lm in measures if lm.junction_widths_ramped)
     if ramped:
         notes.append(f"{ramped} lea{'ves' if ramped > 1 else 'f'}' widths within "
