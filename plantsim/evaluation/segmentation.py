@@ -165,7 +165,8 @@ __all__ = [
     "CloudScale", "Segmentation", "SegmentationSettings", "StemBase", "estimate_scale",
     "BeamStemTrack", "beam_stem_diameter", "beam_stem_top", "checked_range_noise", "cup_stem_top",
     "find_beam_stems", "find_stems", "kept_points",
-    "node_frames", "on_beam_stem", "outlier_mask", "read_by_axis_beams", "track_beam_stem", "with_beam_stems",
+    "node_frames", "on_beam_stem", "outlier_mask", "quadric_rms", "read_by_axis_beams", "track_beam_stem",
+    "with_beam_stems",
     "segment_on_shifted_grids",
     "segment_organs", "shifted_grid_offsets", "stem_noise_points", "uniform_width", "voxel_centroids",
 ]
@@ -2541,6 +2542,30 @@ def _reach_lobes(prof: np.ndarray, *, prominence: float, min_reach: float) -> tu
     return (peaks + start) % n, (ends + start) % n
 
 
+def _cup_bins(r: np.ndarray, phi: np.ndarray, junction: np.ndarray, cell: float
+              ) -> tuple[np.ndarray, int, np.ndarray] | None:
+    """Whether a leaf is a cup round the axis (steps 11 and 12): its points farther from
+    the axis than its junction by a voxel (``cell``), the outer ones (radius ``r`` and
+    azimuth ``phi``, radians), occupy :data:`PETAL_MIN_ARC_DEG` of azimuth bins a voxel
+    wide at their median radius, counted on those beyond it. Returns (the outer mask,
+    the number of bins, each outer point's bin), or None: no cup (or under 20 outer
+    points)."""
+    outer = r > float(np.hypot(junction[0], junction[1])) + cell
+    if np.count_nonzero(outer) < 20:
+        return None
+    r_out = r[outer]
+    # A cup wraps round the axis out to its rim, where any leaf's base spans a wide
+    # angle seen from the axis beside it: the arc is that of its outer half, the
+    # points beyond their median radius (a strip leaf 45 mm wide leaving a stem 6 mm
+    # wide spans 150 deg from the axis, its outer half 20 deg).
+    r_median = float(np.median(r_out))
+    n_bins = max(int(2 * math.pi * r_median / cell), 8)
+    b = np.floor((phi[outer] % (2 * math.pi)) / (2 * math.pi / n_bins)).astype(np.int64) % n_bins
+    if len(np.unique(b[r_out >= r_median])) * 360.0 / n_bins < PETAL_MIN_ARC_DEG:
+        return None
+    return outer, n_bins, b
+
+
 def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray], groups: tuple[int, ...],
                   base_widths: dict[int, np.ndarray], *, cell: float, bin_w: float, min_leaf: float,
                   spacing: float, grid_offset: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
@@ -2585,19 +2610,11 @@ def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndar
     for li in range(len(midribs)):
         member = np.flatnonzero(leaf_label == li)
         junction = midribs[li][0]
-        outer = r_all[member] > float(np.hypot(junction[0], junction[1])) + cell
-        if np.count_nonzero(outer) < 20:
+        cup = _cup_bins(r_all[member], phi_all[member], junction, cell)
+        if cup is None:
             continue
+        outer, n_bins, b = cup
         p_out, r_out, phi_out = pts[member[outer]], r_all[member[outer]], phi_all[member[outer]]
-        # A cup wraps round the axis out to its rim, where any leaf's base spans a wide
-        # angle seen from the axis beside it: the arc is that of its outer half, the
-        # points beyond their median radius (a strip leaf 45 mm wide leaving a stem 6 mm
-        # wide spans 150 deg from the axis, its outer half 20 deg).
-        r_median = float(np.median(r_out))
-        n_bins = max(int(2 * math.pi * r_median / cell), 8)
-        b = np.floor((phi_out % (2 * math.pi)) / (2 * math.pi / n_bins)).astype(np.int64) % n_bins
-        if len(np.unique(b[r_out >= r_median])) * 360.0 / n_bins < PETAL_MIN_ARC_DEG:
-            continue
         d_out = np.linalg.norm(p_out - junction, axis=1)
         prof = _reach_profile(phi_out, d_out, n_bins,
                               half_width=0.5 * cell / r_out)
@@ -2830,15 +2847,10 @@ def _split_smooth_surfaces(pts: np.ndarray, leaf_label: np.ndarray, midribs: lis
     for li in range(len(midribs)):
         member = np.flatnonzero(leaf_label == li)
         junction = midribs[li][0]
-        outer = r_all[member] > float(np.hypot(junction[0], junction[1])) + cell
-        if np.count_nonzero(outer) < 20:
+        cup = _cup_bins(r_all[member], phi_all[member], junction, cell)
+        if cup is None:
             continue
-        r_out, phi_out = r_all[member[outer]], phi_all[member[outer]]
-        r_median = float(np.median(r_out))
-        n_bins = max(int(2 * math.pi * r_median / cell), 8)
-        b = np.floor((phi_out % (2 * math.pi)) / (2 * math.pi / n_bins)).astype(np.int64) % n_bins
-        if len(np.unique(b[r_out >= r_median])) * 360.0 / n_bins < PETAL_MIN_ARC_DEG:
-            continue
+        outer = cup[0]
         part = _smooth_regions(pts[member], spacing, min_nodes=min_nodes, reach=min_leaf)
         n_p = int(part.max()) + 1
         if n_p < 2:
