@@ -2358,6 +2358,11 @@ def _mean_azimuth(phi: np.ndarray) -> float:
     return math.atan2(float(np.sin(phi).sum()), float(np.cos(phi).sum()))
 
 
+def _nearest_in_azimuth(centres: np.ndarray, azimuth: float) -> int:
+    """Index of the azimuth in ``centres`` nearest ``azimuth`` round the circle (radians)."""
+    return int(np.argmin(np.abs((centres - azimuth + math.pi) % (2 * math.pi) - math.pi)))
+
+
 def _sector_owner(phi_part: np.ndarray, phi_others: np.ndarray, label_others: np.ndarray) -> int:
     """The leaf a part cut from a leaf by azimuth belongs to: the leaf holding most of
     the other leaves' points (``phi_others``, ``label_others``) in the part's sector, when
@@ -2646,8 +2651,7 @@ def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndar
             continue
         centre = np.array([_mean_azimuth(phi_out[part_out == k]) for k in new])
         for k, c in zip(new[~petal], centre[~petal]):
-            gap = np.abs((centre[petal] - c + math.pi) % (2 * math.pi) - math.pi)
-            part_out[part_out == k] = new[petal][int(np.argmin(gap))]
+            part_out[part_out == k] = new[petal][_nearest_in_azimuth(centre[petal], c)]
         new = new[petal]
         part = np.empty(len(member), dtype=np.int64)
         part[outer] = part_out
@@ -2874,8 +2878,7 @@ def _split_smooth_surfaces(pts: np.ndarray, leaf_label: np.ndarray, midribs: lis
             continue
         centre = np.array([_mean_azimuth(phi_all[member[part == k]]) for k in range(n_p)])
         for k in np.flatnonzero(~leaf_like):
-            gap = np.abs((centre[new] - centre[k] + math.pi) % (2 * math.pi) - math.pi)
-            part[part == k] = new[int(np.argmin(gap))]
+            part[part == k] = new[_nearest_in_azimuth(centre[new], centre[k])]
         logger.debug("segmentation: leaf %d is a cup of %d smooth surfaces meeting at creases, split", li, len(new))
         added += _apply_split(leaf_label, midribs, groups_l, base_widths, li, member, part,
                               np.full(n_p, -1, dtype=np.int64), new, [ribs[k] for k in new])
