@@ -74,7 +74,7 @@ _LAZY_MODULES = {
     "plantsim.turntable.table": "SimulatedTurntable Turntable",
     "plantsim.hardware.dynamixel.turntable": "ServoTurntable ServoStatus",
     "plantsim.cloud.bag": "read_raw write_raw",
-    "plantsim.evaluation.evaluate": "Evaluation EvaluationOptions evaluate_scan evaluation_threads scan_range_noise truth_from_labelled_mesh truth_notes",
+    "plantsim.evaluation.evaluate": "Evaluation EvaluationOptions evaluate_scan evaluation_threads scan_beam_gaps scan_range_noise truth_from_labelled_mesh truth_notes",
     "plantsim.evaluation.metrics": "cloud_mesh_metrics",
     "plantsim.evaluation.traits": "extract_traits traits_from_mesh",
     "plantsim.evaluation.study": "Sweep run_study pareto_front dask_executor",
@@ -122,7 +122,7 @@ __all__ = [
     "PART_EAR", "make_dicot", "DicotParams", "PART_PETIOLE", "PART_BRANCH", "PART_NAMES", "to_labelled_obj_bytes",
     "LabelledPart", "read_labelled_parts", "parts_from_face_labels", "parts_from_colours", "PART_COLOURS_RGB",
     # evaluation
-    "Evaluation", "EvaluationOptions", "evaluate_scan", "evaluation_threads", "scan_range_noise", "truth_from_labelled_mesh", "truth_notes", "cloud_mesh_metrics", "extract_traits",
+    "Evaluation", "EvaluationOptions", "evaluate_scan", "evaluation_threads", "scan_beam_gaps", "scan_range_noise", "truth_from_labelled_mesh", "truth_notes", "cloud_mesh_metrics", "extract_traits",
     "traits_from_mesh", "Sweep", "run_study", "pareto_front", "dask_executor", "SettingTypeError",
     "MissingExtraError",
     # transforms

@@ -17,8 +17,9 @@ Our S is compared against both. Parameters:
 - wheat: stem diameter (mean over the stems of each one's ring above its basal
   flare), distance between stems (mean over all pairs of stem axes at their bases;
   the mean nearest-neighbour distance is printed too), plant height (the robust
-  top above the disk top, knowing the sensor is noise-free, as ``plantsim traits``
-  knows from a scan's sidecar);
+  top above the disk top, knowing the sensor is noise-free and how far apart its
+  beams pass at the top, half of which is added, as ``plantsim traits`` knows from a
+  scan's sidecar);
 - maize: plant height, stem diameter, leaf width (the widest detected leaf, the
   library's definition; the median over detected leaves, closer to the one leaf a
   person picks; and that median over the leaves 5 mm wide or more, which sets the
@@ -45,7 +46,7 @@ from validate_seed_rig import SEED_LIDAR, SEED_OUTPUT_DISK_TOP_Z, SEED_RIG, T_TU
 from plantsim.scan.config import PlantOptions, RunConfig
 from plantsim.scan.pipeline import run_scan
 from plantsim.scan.schedule import StepScan
-from plantsim.evaluation.evaluate import scan_range_noise
+from plantsim.evaluation.evaluate import scan_beam_gaps, scan_range_noise
 from plantsim.evaluation.traits import PlantTraits, extract_traits, traits_from_mesh
 
 STEPS_DEG = (1.0, 0.5)
@@ -105,8 +106,10 @@ def measure(seed_rig: Path, plant: str) -> dict:
         t = time.perf_counter()
         result = run_scan(seed_config(seed_rig / f"{plant}.stl", step))
         points = result.cloud.plant_only().points_turntable
-        # As `plantsim traits` reads a scan's cloud with its sidecar: knowing the sensor's noise (none).
-        out[step] = extract_traits(points, settings=None, range_noise_m=scan_range_noise(result)[0])
+        # As `plantsim traits` reads a scan's cloud with its sidecar: knowing the sensor's noise
+        # (none) and how far apart its beams pass at the top.
+        out[step] = extract_traits(points, settings=None, range_noise_m=scan_range_noise(result)[0],
+                                   beam_gaps_m=scan_beam_gaps(result))
         out[f"time {step}"] = time.perf_counter() - t
         out[f"points {step}"] = len(points)
         out[f"top {step}"] = float(points[:, 2].max()) if len(points) else math.nan

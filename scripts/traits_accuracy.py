@@ -39,7 +39,7 @@ import time
 import numpy as np
 
 from plantsim.evaluation import traits
-from plantsim.evaluation.evaluate import scan_range_noise, truth_in_turntable
+from plantsim.evaluation.evaluate import scan_beam_gaps, scan_range_noise, truth_in_turntable
 from plantsim.evaluation.organ_match import match_leaves, procedural_leaf_labels
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
@@ -124,7 +124,7 @@ def main() -> None:
             result = run_scan(config, plant=plant)
             pts = result.cloud.plant_only().points_turntable
             noise = scan_range_noise(result)[0]
-            est, tr = traits.extract_traits(pts, range_noise_m=noise), pl.traits
+            est, tr = traits.extract_traits(pts, range_noise_m=noise, beam_gaps_m=scan_beam_gaps(result)), pl.traits
             # Leaves as a botanist counts them: a compound leaf (laminae on one petiole) once.
             true_leaves = len(set(traits.true_leaf_groups(tr["leaves"])))
             laminae = (f" (laminae {est.lamina_count}/{len(tr['leaves'])})"

@@ -25,7 +25,7 @@ import argparse
 import logging
 
 from plantsim.evaluation import traits
-from plantsim.evaluation.evaluate import scan_range_noise
+from plantsim.evaluation.evaluate import scan_beam_gaps, scan_range_noise
 from plantsim.evaluation.organ_match import match_leaves, procedural_leaf_labels
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
@@ -66,7 +66,7 @@ def main() -> None:
         placed = plant_from_arrays(plant.vertices_m, plant.faces)
         result = run_scan(RunConfig(ideal=args.ideal, scan=StepScan(step_deg=args.step)), plant=placed)
         points, noise = result.cloud.plant_only().points_turntable, scan_range_noise(result)[0]
-        est, seg = traits.traits_and_segmentation(points, range_noise_m=noise)
+        est, seg = traits.traits_and_segmentation(points, range_noise_m=noise, beam_gaps_m=scan_beam_gaps(result))
         beams = None if noise is None or not noise.any() else noise
         alone = traits.measure_labelled_leaves(points, procedural_leaf_labels(points, plant, range_noise_m=beams),
                                                leaf_bases_m=leaf_bases(plant, placed.T_turntable_mesh),

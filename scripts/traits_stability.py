@@ -25,7 +25,7 @@ import numpy as np
 
 from plantsim.cloud.export import LAS_SCALE_M
 from plantsim.evaluation import traits
-from plantsim.evaluation.evaluate import scan_range_noise
+from plantsim.evaluation.evaluate import scan_beam_gaps, scan_range_noise
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.scan.config import RunConfig
 from plantsim.scan.pipeline import run_scan
@@ -50,13 +50,13 @@ def main() -> None:
             result = run_scan(RunConfig(ideal=ideal, scan=StepScan(step_deg=step)),
                               plant=plant_from_arrays(plant.vertices_m, plant.faces))
             points = result.cloud.plant_only().points_turntable
-            noise = scan_range_noise(result)[0]
+            noise, gaps = scan_range_noise(result)[0], scan_beam_gaps(result)
             clouds = [points, np.round(points / LAS_SCALE_M) * LAS_SCALE_M]
             clouds += [points + np.random.default_rng(seed).uniform(-1e-6, 1e-6, points.shape) * args.jitter_um
                        for seed in range(1, args.seeds + 1)]
             rows = []
             for cloud in clouds:
-                t = traits.extract_traits(cloud, range_noise_m=noise)
+                t = traits.extract_traits(cloud, range_noise_m=noise, beam_gaps_m=gaps)
                 rows.append((100 * (t.height_m / truth["height_m"] - 1), t.leaf_count,
                              100 * (t.leaf_area_m2 / truth["leaf_area_m2"] - 1)))
                 if len(rows) == 1:

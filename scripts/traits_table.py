@@ -32,7 +32,7 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO_ROOT))
 sys.path.insert(0, str(REPO_ROOT / "scripts"))
 
-from plantsim.evaluation.evaluate import scan_range_noise  # noqa: E402
+from plantsim.evaluation.evaluate import scan_beam_gaps, scan_range_noise  # noqa: E402
 from plantsim.evaluation.traits import convex_hull_volume, extract_traits, true_leaf_groups  # noqa: E402
 from plantsim.plant.mesh import load_plant, plant_from_arrays  # noqa: E402
 from plantsim.plant.procedural import make_dicot, make_maize, make_wheat  # noqa: E402
@@ -106,9 +106,9 @@ def truth_of(plant) -> dict:
     }
 
 
-def estimate_of(points, range_noise_m=None) -> tuple[dict, tuple[str, ...]]:
+def estimate_of(points, range_noise_m=None, beam_gaps_m=None) -> tuple[dict, tuple[str, ...]]:
     """Traits of a cloud, keyed as TRAITS, and the method's notes."""
-    e = extract_traits(points, range_noise_m=range_noise_m)
+    e = extract_traits(points, range_noise_m=range_noise_m, beam_gaps_m=beam_gaps_m)
     out = {key: float(getattr(e, key)) for key, *_ in TRAITS if hasattr(e, key)}
     out["median_leaf_width_m"] = _nan_median(getattr(e, "leaf_widths_m", ()))
     own = [st.height_m for st in e.stems if math.isfinite(st.height_m)]
@@ -129,7 +129,7 @@ def _scan(config: RunConfig, plant) -> tuple[dict, tuple[str, ...], int, float]:
     result = run_scan(config, plant=plant)
     points = result.cloud.plant_only().points_turntable
     try:
-        estimate, notes = estimate_of(points, scan_range_noise(result)[0])
+        estimate, notes = estimate_of(points, scan_range_noise(result)[0], scan_beam_gaps(result))
     except Exception as exc:  # noqa: BLE001 - any failure of the method is a finding, not a stop
         # The method failing on one cloud is a row of "not found" and a note naming the error.
         estimate, notes = {}, (f"trait extraction failed: {type(exc).__name__}: {exc}",)

@@ -135,6 +135,12 @@ def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_withou
     assert "read back from each point's intensity" in data["leaf_widths_checked_against"]
     assert data["leaves"] and all(isinstance(lf["width_resolved"], bool) for lf in data["leaves"])
     assert "leaf widths checked against: the urg-04lx-ug01's range noise" in printed
+    # The rig's beams, from the sidecar, say how far apart they pass at the top: half that
+    # gap is in the height, and a note says so.
+    assert data["height_top_between_beams"].startswith("half the gap between the urg-04lx-ug01's beams "
+                                                       "(0.3516 deg apart) at the top, on the scan's rig")
+    gap = data["height_beam_gap_m"]
+    assert 0.001 < gap < 0.01 and "between the beams at the top voxel" in printed
     # What the scan said its rig could not do for the plant comes with the traits.
     said = json.loads((tmp_path / "maize.las.json").read_text())["simulated"]["plan"]["rig_fit_warnings"]
     assert data["scan_rig_fit_warnings"] == said
@@ -145,6 +151,8 @@ def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_withou
     assert main(["traits", str(alone), "-o", str(out)]) == 0
     data = json.loads(out.read_text())
     assert data["leaf_widths_checked_against"].startswith("not checked: no plantsim sidecar (alone.las.json)")
+    assert data["height_top_between_beams"].startswith("the top as sampled: no plantsim sidecar (alone.las.json)")
+    assert data["height_beam_gap_m"] is None
     assert data["scan_rig_fit_warnings"] is None
     assert all(lf["width_resolved"] is None for lf in data["leaves"])
     # A sidecar of another scan (other point count) is not used.
@@ -161,6 +169,8 @@ def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_withou
     assert main(["traits", str(pts), "-o", str(out)]) == 0
     assert json.loads(out.read_text())["leaf_widths_checked_against"].startswith(
         "not checked: a .pts cloud does not carry each point's range and turntable angle")
+    assert json.loads(out.read_text())["height_top_between_beams"].startswith(
+        "the top as sampled: a .pts cloud does not carry each point's turntable angle")
 
 
 def test_traits_of_a_rosette_scanned_edge_on_repeat_the_rigs_warning(tmp_path, capsys):
@@ -233,4 +243,6 @@ def test_evaluate_scan_writes_the_check_and_the_notes_into_the_sidecar_object(tm
     assert all(0.0 <= x <= 1.0 for x in shares)
     assert out["notes"] == list(ev.estimate.notes)
     assert any(n.startswith("stem at") for n in out["notes"])  # the noisy stem's bound is said
+    # The height is read between the beams at the top, as `plantsim traits` reads it.
+    assert 0.001 < ev.estimate.height_beam_gap_m < 0.01
 

@@ -25,9 +25,11 @@ rosettes (6 leaves for 12; one leaf for 30, area -82 %, which a note says is a r
 leaves, tested below, where its true leaves measured alone read -6 %: the
 segmentation's miss; the 12-leaf one's area, -40 % while its crown's noisy column held its inner leaves
 up to 69 mm, reads -11 % since the beams end the crown where they meet the
-leaves standing round it, segmentation.cup_stem_top); on the 3-leaf plants, the ideal rosette's height (-2.3 %: the
-top is a leaf's tip, and the URG's beams, 0.35 deg apart, pass 1.5 mm below it; with a
-fan three times finer the cloud's highest point lies 0.3 mm below it). The realistic
+leaves standing round it, segmentation.cup_stem_top). The ideal 3-leaf rosette's
+height is met (-0.3 %) since half the gap between the beams at the top is added
+(traits.robust_height's ``beam_gaps_m``, as ``plantsim traits`` reads them from the
+sidecar): the top is a leaf's tip, and the URG's beams, 0.35 deg apart, pass 2.7 mm
+apart there, the highest hit 1.5 mm below it (-2.3 % before). The realistic
 3-leaf rosette's leaves, one leaf in the noise round the axis, are split by azimuth
 (segmentation._split_at_axis): 3 on every grid, each matched to its true leaf. The point
 spacing the segmentation scales by is the median over the surface's area, measured on
@@ -65,13 +67,14 @@ face is where the noise put it, and matched the maize's 0).
 
 import functools
 import logging
+import math
 
 import numpy as np
 import pytest
 
 from plantsim.cloud.export import read_cloud, write_cloud
 from plantsim.evaluation import traits
-from plantsim.evaluation.evaluate import scan_range_noise
+from plantsim.evaluation.evaluate import scan_beam_gaps, scan_range_noise
 from plantsim.evaluation.organ_match import match_procedural_leaves, procedural_leaf_labels
 from plantsim.plant.mesh import plant_from_arrays
 from plantsim.plant.procedural import make_dicot, make_maize, make_rosette, make_wheat
@@ -100,8 +103,10 @@ NOT_BY_SEGMENTATION = ("issue 13 target not met, and the true leaves measured al
                        "(scripts/traits_area_bound.py; see the module docstring)")
 SMALL = ["maize3", "rosette3", "bean3"]
 # Per scan, each plant point's range noise along its beam (what `plantsim traits` reads
-# from a scan's sidecar), filled as the scans run.
+# from a scan's sidecar), filled as the scans run; and how far up the vertical through each
+# the fan's next beam passes (its beam gap, read from the sidecar too).
 _RANGE_NOISE: dict = {}
+_BEAM_GAPS: dict = {}
 
 
 @functools.lru_cache(maxsize=None)
@@ -112,6 +117,7 @@ def _plant_cloud(name: str, ideal: bool, step_deg: float):
         result = run_scan(RunConfig(ideal=ideal, scan=StepScan(step_deg=step_deg)),
                           plant=plant_from_arrays(plant.vertices_m, plant.faces))
         _RANGE_NOISE[(name, ideal, step_deg)] = scan_range_noise(result)[0]
+        _BEAM_GAPS[(name, ideal, step_deg)] = scan_beam_gaps(result)
         return result.cloud.plant_only(), plant.traits
     finally:
         logging.getLogger("plantsim").setLevel(logging.NOTSET)
@@ -127,7 +133,8 @@ def _scan(name: str, ideal: bool, step_deg: float):
     # Given the scan's range noise, as `plantsim traits` reads it from the scan's sidecar
     # (zeros for the ideal sensor: nothing moves, no branch is the stem's noise).
     points, truth = _cloud(name, ideal, step_deg)
-    return traits.extract_traits(points, range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)]), truth
+    key = (name, ideal, step_deg)
+    return traits.extract_traits(points, range_noise_m=_RANGE_NOISE[key], beam_gaps_m=_BEAM_GAPS[key]), truth
 
 
 def _rel(estimate, truth):
@@ -148,7 +155,7 @@ def _small(*missed):
     return [n for n in SMALL if n not in missed] + _miss(*((n,) for n in missed))
 
 
-@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "rosette30", "dicot"] + _small("rosette3"))
+@pytest.mark.parametrize("name", ["maize", "wheat", "rosette12", "rosette30", "dicot"] + _small())
 def test_height_from_an_ideal_half_degree_scan_within_two_percent(name):
     est, truth = _scan(name, *IDEAL)
     assert _rel(est.height_m, truth["height_m"]) <= 0.02
@@ -158,6 +165,18 @@ def test_height_from_an_ideal_half_degree_scan_within_two_percent(name):
 def test_height_from_a_realistic_one_degree_scan_within_five_percent(name):
     est, truth = _scan(name, *REALISTIC)
     assert _rel(est.height_m, truth["height_m"]) <= 0.05
+
+
+def test_the_ideal_3_leaf_rosettes_top_is_read_between_the_beams():
+    # Its top is a leaf's tip, and the beams at it pass 2.7 mm apart: the highest that hits
+    # it reads 2.3 % low. Half the gap added, the height is within 0.5 %.
+    est, truth = _scan("rosette3", *IDEAL)
+    points, _ = _cloud("rosette3", *IDEAL)
+    sampled = traits.extract_traits(points, range_noise_m=_RANGE_NOISE[("rosette3", *IDEAL)])
+    assert math.isnan(sampled.height_beam_gap_m) and _rel(sampled.height_m, truth["height_m"]) > 0.02
+    assert 0.0025 < est.height_beam_gap_m < 0.003
+    assert est.height_m - sampled.height_m == pytest.approx(est.height_beam_gap_m / 2, abs=1e-9)
+    assert _rel(est.height_m, truth["height_m"]) <= 0.005
 
 
 @pytest.mark.parametrize("name", list(PLANTS))
@@ -562,7 +581,8 @@ def test_the_traits_of_a_scan_read_back_from_its_file_are_its_own(tmp_path, name
     path = tmp_path / f"scan{suffix}"
     write_cloud(path, cloud, xyz_double=True)
     back = traits.extract_traits(read_cloud(path).points_turntable,
-                                 range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)])
+                                 range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)],
+                                 beam_gaps_m=_BEAM_GAPS[(name, ideal, step_deg)])
     assert (back.height_m, back.leaf_count, back.leaf_area_m2) == (est.height_m, est.leaf_count, est.leaf_area_m2)
     assert back.leaf_counts_over_grids == est.leaf_counts_over_grids
 
@@ -575,7 +595,8 @@ def test_a_micrometre_moves_the_traits_within_their_spread_over_the_grids(name, 
     points, truth = _cloud(name, ideal, step_deg)
     est, _ = _scan(name, ideal, step_deg)
     moved = traits.extract_traits(points + np.random.default_rng(1).uniform(-1e-6, 1e-6, points.shape),
-                                  range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)])
+                                  range_noise_m=_RANGE_NOISE[(name, ideal, step_deg)],
+                                  beam_gaps_m=_BEAM_GAPS[(name, ideal, step_deg)])
     counts = est.leaf_counts_over_grids
     assert len(counts) == 9 and est.leaf_count == int(np.median(counts))
     assert min(counts) <= moved.leaf_count <= max(counts)

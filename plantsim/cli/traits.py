@@ -5,7 +5,10 @@ be in the turntable frame, metres, z up, the plant base at ``--base-z``. When pl
 sidecar is beside it (``CLOUD.json``, from ``plantsim scan``), the sensor's range noise
 along each point's beam (the rig's LiDAR pose and each point's turntable angle and
 intensity) checks the leaf widths and moves the points that can reach the plant's top
-along their beams before the height is read (a note gives the height as measured too);
+along their beams before the height is read (a note gives the height as measured too),
+and the rig's beams say how far apart they pass at the top, which lies between the
+highest that hits it and the next: half that gap is added to the height
+(``height_top_between_beams`` says so, or why not; ``height_beam_gap_m``);
 the output says what that noise is, or why it is not known, and repeats what the scan
 said its rig could not do for the plant (``scan_rig_fit_warnings``: a flat plant's
 leaves seen edge-on, a top seen at grazing beams), which bounds what the traits can read.
@@ -53,12 +56,13 @@ def add_traits_command(sub) -> None:
     p.set_defaults(func=cmd_traits)
 
 
-def traits_dict(points_turntable, *, base_z: float = 0.0, range_noise_m=None, grids: int = 9) -> dict:
+def traits_dict(points_turntable, *, base_z: float = 0.0, range_noise_m=None, beam_gaps_m=None,
+                grids: int = 9) -> dict:
     """The traits JSON object of a cloud (NaN becomes None)."""
     from plantsim.evaluation.traits import TraitSettings, extract_traits
 
     return extract_traits(points_turntable, settings=TraitSettings(base_z=base_z, shifted_grids=grids),
-                          range_noise_m=range_noise_m).to_dict()
+                          range_noise_m=range_noise_m, beam_gaps_m=beam_gaps_m).to_dict()
 
 
 def labelled_leaves_dict(points_turntable, labels, *, stem_label: int = 0, ignore_labels=(),
@@ -186,6 +190,32 @@ def range_noise_from_sidecar(cloud_path: Path, meta: dict | None, why_no_meta: s
     return (None if sigma is None else range_noise_vectors(cloud, T_base_lidar, sigma)), why
 
 
+def beam_gaps_from_sidecar(cloud_path: Path, meta: dict | None, why_no_meta: str, cloud):
+    """How far up the vertical through each of ``cloud``'s points the fan's next beam
+    passes (:func:`plantsim.evaluation.evaluate.beam_gaps_m`), from the scan's rig and
+    LiDAR in its sidecar ``meta``, and what they are; (None, why not) when the format
+    drops each point's turntable angle or there is no sidecar for this cloud."""
+    from plantsim.cloud.export import INDEXED_FORMATS, LOSSY_FORMATS, sidecar_path
+    from plantsim.evaluation.evaluate import beam_gaps_m
+    from plantsim.sensor.spec import LidarSpec
+
+    suffix = cloud_path.suffix.lower()
+    if suffix in LOSSY_FORMATS | INDEXED_FORMATS:
+        return None, (f"the top as sampled: a {suffix} cloud does not carry each point's turntable angle "
+                      "(a .las, .ply or .pcd from plantsim scan does)")
+    if meta is None:
+        return None, f"the top as sampled: {why_no_meta}"
+    try:
+        T_base_lidar = meta["frames"]["T_base_lidar"]
+        lidar = LidarSpec(**meta["config"]["lidar"])
+    except (ValueError, KeyError, TypeError) as exc:
+        return None, (f"the top as sampled: {sidecar_path(cloud_path).name} does not give the scan's LiDAR and "
+                      f"rig ({type(exc).__name__}: {exc})")
+    return (beam_gaps_m(cloud, T_base_lidar, lidar.angle_increment_deg),
+            f"half the gap between the {lidar.name}'s beams ({lidar.angle_increment_deg:.4g} deg apart) at the "
+            f"top, on the scan's rig ({sidecar_path(cloud_path).name})")
+
+
 def rig_fit_warnings_from_sidecar(meta: dict | None) -> list[str] | None:
     """What the scan's sidecar says its rig could not do for this plant
     (:func:`plantsim.rig.fit.rig_fit_warnings`, recorded at scan time); None without a
@@ -225,14 +255,16 @@ def cmd_traits(args: argparse.Namespace) -> int:
     pts = cloud.points_turntable
     meta, why_no_meta = read_sidecar(args.cloud, n_in_file)
     noise, checked = range_noise_from_sidecar(args.cloud, meta, why_no_meta, cloud)
+    gaps, top_between = beam_gaps_from_sidecar(args.cloud, meta, why_no_meta, cloud)
     rig_warnings = rig_fit_warnings_from_sidecar(meta)
     try:
-        out = traits_dict(pts, base_z=args.base_z, range_noise_m=noise, grids=args.grids)
+        out = traits_dict(pts, base_z=args.base_z, range_noise_m=noise, beam_gaps_m=gaps, grids=args.grids)
     except ValueError as exc:
         print(f"plantsim traits: {exc}", file=sys.stderr)
         return 2
     out["points_measured"] = measured
     out["leaf_widths_checked_against"] = checked
+    out["height_top_between_beams"] = top_between
     if labels is not None:
         # The same points as the traits': the file's selection of them.
         try:

@@ -245,6 +245,61 @@ def range_noise_vectors(cloud: Any, T_base_lidar: Any, sigma_m: Any) -> np.ndarr
     return (sigma[:, None] if sigma.ndim == 1 else sigma) * dirs
 
 
+# Below this share of a beam's spacing turned upright, the fan lies too near the
+# horizontal for its neighbouring beams to bound a top from above (:func:`beam_gaps_m`).
+_GAP_MIN_UPRIGHT = 0.1
+
+
+def beam_gaps_m(cloud: Any, T_base_lidar: Any, angle_increment_deg: float) -> np.ndarray:
+    """Per point, how far up the vertical through it the fan's next beam passes: the
+    ``beam_gaps_m`` of :func:`plantsim.evaluation.traits.extract_traits`.
+
+    Neighbouring beams at range ``R`` lie ``R dtheta`` apart across the beam, within
+    the fan; along the vertical through the point that is ``R dtheta / |e_z|``, with
+    ``e`` the unit vector across the beam within the fan (``n x d``: the fan's normal
+    ``n``, the lidar's +Z, crossed with the beam's direction ``d``). For an upright fan
+    ``|e_z|`` is the cosine of the beam's elevation: a beam level with the point gives
+    ``R dtheta``, one looking up at 45 deg twice ``R dtheta / sqrt 2``. The top of a
+    thin organ lies between the highest beam that hits it and the next, which passes
+    over it: this is that interval.
+
+    Args:
+        cloud: the :class:`plantsim.cloud.reconstruct.PointCloud` (its
+            ``points_turntable`` and ``turntable_angle_rad``).
+        T_base_lidar: (4, 4) the rig's LiDAR pose.
+        angle_increment_deg: the fan's angle between neighbouring beams, degrees (> 0;
+            :attr:`plantsim.sensor.spec.LidarSpec.angle_increment_deg`).
+
+    Returns:
+        (n,) float64 metres; NaN where the fan there lies within ``asin 0.1`` (5.7 deg)
+        of the horizontal, whose beams bound no top from above.
+    """
+    from plantsim.cloud.reconstruct import base_to_turntable, beam_dirs_turntable
+
+    step = float(angle_increment_deg)
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f"angle_increment_deg must be a number > 0, got {angle_increment_deg!r}")
+    T = np.asarray(T_base_lidar, dtype=np.float64)
+    pts = np.asarray(cloud.points_turntable, dtype=np.float64).reshape(-1, 3)
+    theta = np.asarray(cloud.turntable_angle_rad, dtype=np.float64).reshape(-1)
+    d = beam_dirs_turntable(pts, theta, T)
+    origin = base_to_turntable(np.broadcast_to(T[:3, 3], pts.shape), theta)
+    normal = base_to_turntable(np.broadcast_to(T[:3, 2], pts.shape), theta)
+    upright = np.abs(np.cross(normal, d)[:, 2])
+    range_m = np.linalg.norm(pts - origin, axis=1)
+    gaps = np.full(len(pts), np.nan)
+    ok = upright >= _GAP_MIN_UPRIGHT
+    gaps[ok] = range_m[ok] * math.radians(step) / upright[ok]
+    return gaps
+
+
+def scan_beam_gaps(result) -> np.ndarray:
+    """:func:`beam_gaps_m` of a scan's plant points, from its rig and LiDAR: pass them to
+    ``extract_traits(result.cloud.plant_only().points_turntable, beam_gaps_m=...)``."""
+    return beam_gaps_m(result.cloud.plant_only(), result.raw.T_base_lidar,
+                       result.config.lidar.angle_increment_deg)
+
+
 def truth_traits_path(source: str | Path) -> Path | None:
     """The exact-traits file beside a mesh, if any.
 
@@ -604,7 +659,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
                    truth_path: str | Path | None = None, threads: int | None = None,
                    progress: Callable[[int, int], None] | None = None,
                    proximity: metrics.MeshProximity | None = None,
-                   range_noise_m: Any = None, range_noise_source: str | None = None) -> Evaluation:
+                   range_noise_m: Any = None, range_noise_source: str | None = None,
+                   beam_gaps_m: Any = None) -> Evaluation:
     """Measures plant points against the placed mesh and, if known, the exact traits.
 
     Args:
@@ -627,6 +683,9 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
             against it (``extract_traits``' ``range_noise_m``); None: not checked.
         range_noise_source: what ``range_noise_m`` is, or why it is None, for the
             sidecar (:func:`range_noise_sigma_m`'s second value).
+        beam_gaps_m: (n,) per point, how far up the vertical through it the fan's next
+            beam passes (:func:`beam_gaps_m`): the height adds half the top's
+            (``extract_traits``' ``beam_gaps_m``); None: the top as sampled.
 
     Returns:
         Evaluation.
@@ -660,7 +719,7 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
     try:
         estimate_future = (None if pool is None else
                            pool.submit(traits.traits_and_segmentation, pts, settings=options.trait_settings,
-                                       range_noise_m=range_noise_m))
+                                       range_noise_m=range_noise_m, beam_gaps_m=beam_gaps_m))
         measured = metrics.cloud_mesh_metrics(
             pts, plant.vertices_turntable, plant.faces, coverage_distance=options.coverage_distance,
             band_height=options.band_height, n_surface_samples=options.n_surface_samples,
@@ -681,7 +740,8 @@ def evaluate_cloud(points_turntable: Any, plant: PlantMesh, *,
         try:
             reference = traits.traits_from_truth(truth_in_turntable(truth, plant.T_turntable_mesh))
             estimate, organs = (traits.traits_and_segmentation(pts, settings=options.trait_settings,
-                                                               range_noise_m=range_noise_m)
+                                                               range_noise_m=range_noise_m,
+                                                               beam_gaps_m=beam_gaps_m)
                                 if estimate_future is None else estimate_future.result())
             comparison = traits.compare_traits(estimate, reference)
         except (ValueError, KeyError, TypeError) as exc:
@@ -726,7 +786,7 @@ def evaluate_scan(result, *, options: EvaluationOptions = EvaluationOptions(),
     return evaluate_cloud(result.cloud.plant_only().points_turntable, result.plant,
                           options=options, truth_path=truth_path, threads=threads,
                           progress=progress, proximity=proximity, range_noise_m=noise,
-                          range_noise_source=source)
+                          range_noise_source=source, beam_gaps_m=scan_beam_gaps(result))
 
 
 def scan_range_noise(result) -> tuple[np.ndarray | None, str]:
