@@ -141,6 +141,7 @@ def test_cli_scan_and_traits_check_the_widths_with_the_sidecar_and_say_so_withou
                                                        "(0.3516 deg apart) at the top, on the scan's rig")
     gap = data["height_beam_gap_m"]
     assert 0.001 < gap < 0.01 and "between the beams at the top voxel" in printed
+    assert f"height: {data['height_top_between_beams']}" in printed
     # What the scan said its rig could not do for the plant comes with the traits.
     said = json.loads((tmp_path / "maize.las.json").read_text())["simulated"]["plan"]["rig_fit_warnings"]
     assert data["scan_rig_fit_warnings"] == said

@@ -328,6 +328,7 @@ def cmd_traits(args: argparse.Namespace) -> int:
         for warning in rig_warnings or ():
             print(f"note: the scan's rig (its sidecar): {warning}")
         print(f"leaf widths checked against: {checked}")
+        print(f"height: {top_between}")
         if labels is not None:
             lab = out["labelled_leaves"]
             print(f"labelled leaves ({lab['field']!r}): {lab['leaf_count']} of {len(lab['labels'])} measured, "
