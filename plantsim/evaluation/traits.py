@@ -881,21 +881,13 @@ def _top_voxels(pts: np.ndarray, cell: float, min_points: float,
     return tops
 
 
-def _top_voxel_heights(pts: np.ndarray, cell: float, min_points: float,
-                       offsets: list[np.ndarray]) -> list[float]:
-    """The highest centroid of the voxels holding enough points, on each grid."""
-    return [z for z, _ in _top_voxels(pts, cell, min_points, offsets)]
-
-
-def _half_beam_gaps(pts: np.ndarray, cell: float, min_points: float, offsets: list[np.ndarray],
-                    gaps: np.ndarray | None) -> list[float]:
+def _half_beam_gaps(tops: list[tuple[float, np.ndarray]], gaps: np.ndarray | None) -> list[float]:
     """On each grid, half the median beam gap (:func:`robust_height`'s ``beam_gaps_m``)
-    of the top voxel's points; 0 without gaps, or where none of them is known."""
-    if gaps is None:
-        return [0.0] * len(offsets)
+    of the top voxel's points (``tops``: :func:`_top_voxels`'); 0 without gaps, or
+    where none of them is known."""
     out = []
-    for _, members in _top_voxels(pts, cell, min_points, offsets):
-        known = gaps[members][np.isfinite(gaps[members])]
+    for _, members in tops:
+        known = np.zeros(0) if gaps is None else gaps[members][np.isfinite(gaps[members])]
         out.append(0.5 * float(np.median(known)) if len(known) else 0.0)
     return out
 
@@ -959,9 +951,10 @@ def _heights_moved_along_beams(pts: np.ndarray, cell: float, min_points: float, 
     """(tops with the points moved along their beams, tops as measured, points moved,
     half the top voxel's beam gap on each grid, :func:`_half_beam_gaps`); the two tops
     equal and 0 moved without noise (None or zeros). The tops do not hold the half gaps."""
-    raw = _top_voxel_heights(pts, cell, min_points, offsets)
+    voxels = _top_voxels(pts, cell, min_points, offsets)
+    raw = [z for z, _ in voxels]
     if noise is None or not np.any(noise != 0):
-        return raw, raw, 0, _half_beam_gaps(pts, cell, min_points, offsets, gaps)
+        return raw, raw, 0, _half_beam_gaps(voxels, gaps)
     # Only points that can reach a top voxel once moved need moving: a point moves at
     # most 3 sigma |d_z| in z, and a top voxel's points lie within a cell below its
     # centroid. Widen the band until it holds every point that can reach the lowest
@@ -976,12 +969,13 @@ def _heights_moved_along_beams(pts: np.ndarray, cell: float, min_points: float, 
         if band.any():
             moved_pts[band] = beam_median_points(pts, noise, radius_m=radius_m, moved=band)[band]
             done |= band
-        tops = _top_voxel_heights(moved_pts, cell, min_points, offsets)
+        voxels = _top_voxels(moved_pts, cell, min_points, offsets)
+        tops = [z for z, _ in voxels]
         if min(tops) - cell >= cut or done.all():
             break
         cut = min(tops) - cell
     return (tops, raw, int(np.count_nonzero(np.any(moved_pts != pts, axis=1))),
-            _half_beam_gaps(moved_pts, cell, min_points, offsets, gaps))
+            _half_beam_gaps(voxels, gaps))
 
 
 def robust_height(points_turntable: Any, *, base_z: float = 0.0, cell: float | None = None,
