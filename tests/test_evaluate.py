@@ -199,6 +199,7 @@ def test_threads_are_checked_capped_at_the_cores_and_taken_from_the_scan(box_mes
     result = SimpleNamespace(cloud=cloud, plant=plant, parts={},
                              config=SimpleNamespace(threads=1, lidar=None, sensor_model=None))
     evaluate.evaluate_scan(result, options=evaluate.EvaluationOptions(n_surface_samples=100))
+    assert evaluate.scan_beam_gaps(result) is None  # no LiDAR given: the top as sampled
     result.config.threads = None
     evaluate.evaluate_scan(result, options=evaluate.EvaluationOptions(n_surface_samples=100))
     assert used == [1, cores]

@@ -293,11 +293,14 @@ def beam_gaps_m(cloud: Any, T_base_lidar: Any, angle_increment_deg: float) -> np
     return gaps
 
 
-def scan_beam_gaps(result) -> np.ndarray:
+def scan_beam_gaps(result) -> np.ndarray | None:
     """:func:`beam_gaps_m` of a scan's plant points, from its rig and LiDAR: pass them to
-    ``extract_traits(result.cloud.plant_only().points_turntable, beam_gaps_m=...)``."""
-    return beam_gaps_m(result.cloud.plant_only(), result.raw.T_base_lidar,
-                       result.config.lidar.angle_increment_deg)
+    ``extract_traits(result.cloud.plant_only().points_turntable, beam_gaps_m=...)``. None
+    when the scan does not give its LiDAR (the top is then read as sampled)."""
+    lidar = getattr(getattr(result, "config", None), "lidar", None)
+    if lidar is None:
+        return None
+    return beam_gaps_m(result.cloud.plant_only(), result.raw.T_base_lidar, lidar.angle_increment_deg)
 
 
 def truth_traits_path(source: str | Path) -> Path | None:
