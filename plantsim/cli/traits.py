@@ -162,26 +162,43 @@ def read_sidecar(cloud_path: Path, n_points_in_file: int) -> tuple[dict | None, 
     return meta, ""
 
 
+def _sidecar_rig(cloud_path: Path, meta: dict | None, why_no_meta: str, *, carried: str, gives: str):
+    """((T_base_lidar, LidarSpec), "") of the scan, from its sidecar ``meta``
+    (:func:`read_sidecar`); (None, why not) when the format drops each point's
+    ``carried``, there is no sidecar for this cloud, or it does not give them (``gives``:
+    what the caller looks for in it)."""
+    from plantsim.cloud.export import INDEXED_FORMATS, LOSSY_FORMATS, sidecar_path
+    from plantsim.sensor.spec import LidarSpec
+
+    suffix = cloud_path.suffix.lower()
+    if suffix in LOSSY_FORMATS | INDEXED_FORMATS:
+        return None, (f"a {suffix} cloud does not carry each point's {carried} (a .las, .ply or .pcd from "
+                      "plantsim scan does)")
+    if meta is None:
+        return None, why_no_meta
+    try:
+        return (meta["frames"]["T_base_lidar"], LidarSpec(**meta["config"]["lidar"])), ""
+    except (ValueError, KeyError, TypeError) as exc:
+        return None, (f"{sidecar_path(cloud_path).name} does not give the scan's {gives} "
+                      f"({type(exc).__name__}: {exc})")
+
+
 def range_noise_from_sidecar(cloud_path: Path, meta: dict | None, why_no_meta: str, cloud):
     """The range noise vectors of ``cloud``'s points (a selection of the file's) from the
     scan's sidecar ``meta`` (:func:`read_sidecar`), and what they are; (None, why not)
     when the format drops each point's beam, there is no sidecar for this cloud, or it
     says the noise is not known."""
-    from plantsim.cloud.export import INDEXED_FORMATS, LOSSY_FORMATS, sidecar_path
+    from plantsim.cloud.export import sidecar_path
     from plantsim.evaluation.evaluate import range_noise_sigma_m, range_noise_vectors
     from plantsim.sensor.model import SensorModel
-    from plantsim.sensor.spec import LidarSpec
 
-    suffix = cloud_path.suffix.lower()
-    if suffix in LOSSY_FORMATS | INDEXED_FORMATS:
-        return None, (f"not checked: a {suffix} cloud does not carry each point's range and turntable "
-                      "angle (a .las, .ply or .pcd from plantsim scan does)")
-    if meta is None:
-        return None, f"not checked: {why_no_meta}"
+    rig, why = _sidecar_rig(cloud_path, meta, why_no_meta, carried="range and turntable angle",
+                            gives="sensor and rig")
+    if rig is None:
+        return None, f"not checked: {why}"
+    T_base_lidar, lidar = rig
     try:
         simulated = meta["simulated"]
-        T_base_lidar = meta["frames"]["T_base_lidar"]
-        lidar = LidarSpec(**meta["config"]["lidar"])
         model = SensorModel(**meta["config"]["sensor_model"])
     except (ValueError, KeyError, TypeError) as exc:
         return None, (f"not checked: {sidecar_path(cloud_path).name} does not give the scan's sensor and rig "
@@ -195,22 +212,13 @@ def beam_gaps_from_sidecar(cloud_path: Path, meta: dict | None, why_no_meta: str
     passes (:func:`plantsim.evaluation.evaluate.beam_gaps_m`), from the scan's rig and
     LiDAR in its sidecar ``meta``, and what they are; (None, why not) when the format
     drops each point's turntable angle or there is no sidecar for this cloud."""
-    from plantsim.cloud.export import INDEXED_FORMATS, LOSSY_FORMATS, sidecar_path
+    from plantsim.cloud.export import sidecar_path
     from plantsim.evaluation.evaluate import beam_gaps_m
-    from plantsim.sensor.spec import LidarSpec
 
-    suffix = cloud_path.suffix.lower()
-    if suffix in LOSSY_FORMATS | INDEXED_FORMATS:
-        return None, (f"the top as sampled: a {suffix} cloud does not carry each point's turntable angle "
-                      "(a .las, .ply or .pcd from plantsim scan does)")
-    if meta is None:
-        return None, f"the top as sampled: {why_no_meta}"
-    try:
-        T_base_lidar = meta["frames"]["T_base_lidar"]
-        lidar = LidarSpec(**meta["config"]["lidar"])
-    except (ValueError, KeyError, TypeError) as exc:
-        return None, (f"the top as sampled: {sidecar_path(cloud_path).name} does not give the scan's LiDAR and "
-                      f"rig ({type(exc).__name__}: {exc})")
+    rig, why = _sidecar_rig(cloud_path, meta, why_no_meta, carried="turntable angle", gives="LiDAR and rig")
+    if rig is None:
+        return None, f"the top as sampled: {why}"
+    T_base_lidar, lidar = rig
     return (beam_gaps_m(cloud, T_base_lidar, lidar.angle_increment_deg),
             f"half the gap between the {lidar.name}'s beams ({lidar.angle_increment_deg:.4g} deg apart) at the "
             f"top, on the scan's rig ({sidecar_path(cloud_path).name})")

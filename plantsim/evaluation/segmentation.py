@@ -2571,6 +2571,22 @@ def _cup_bins(r: np.ndarray, phi: np.ndarray, junction: np.ndarray, cell: float
     return outer, n_bins, b
 
 
+def _cups(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray], cell: float):
+    """The leaves that are cups round the axis (:func:`_cup_bins`; steps 11 and 12), among
+    those found when the walk starts: (leaf, its points' indices, its junction, the cup's
+    bins, every point's radius and azimuth), each read when the walk reaches it, after the
+    splits of the leaves before it relabelled their points (a split's new leaves are not
+    walked)."""
+    r_all = np.hypot(pts[:, 0], pts[:, 1])
+    phi_all = np.arctan2(pts[:, 1], pts[:, 0])
+    for li in range(len(midribs)):
+        member = np.flatnonzero(leaf_label == li)
+        junction = midribs[li][0]
+        cup = _cup_bins(r_all[member], phi_all[member], junction, cell)
+        if cup is not None:
+            yield li, member, junction, cup, r_all, phi_all
+
+
 def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndarray], groups: tuple[int, ...],
                   base_widths: dict[int, np.ndarray], *, cell: float, bin_w: float, min_leaf: float,
                   spacing: float, grid_offset: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
@@ -2609,16 +2625,8 @@ def _split_petals(pts: np.ndarray, leaf_label: np.ndarray, midribs: list[np.ndar
     midribs = list(midribs)
     groups = list(groups) if groups else list(range(len(midribs)))
     base_widths = dict(base_widths)
-    r_all = np.hypot(pts[:, 0], pts[:, 1])
-    phi_all = np.arctan2(pts[:, 1], pts[:, 0])
     added = 0
-    for li in range(len(midribs)):
-        member = np.flatnonzero(leaf_label == li)
-        junction = midribs[li][0]
-        cup = _cup_bins(r_all[member], phi_all[member], junction, cell)
-        if cup is None:
-            continue
-        outer, n_bins, b = cup
+    for li, member, junction, (outer, n_bins, b), r_all, phi_all in _cups(pts, leaf_label, midribs, cell):
         p_out, r_out, phi_out = pts[member[outer]], r_all[member[outer]], phi_all[member[outer]]
         d_out = np.linalg.norm(p_out - junction, axis=1)
         prof = _reach_profile(phi_out, d_out, n_bins,
@@ -2844,17 +2852,9 @@ def _split_smooth_surfaces(pts: np.ndarray, leaf_label: np.ndarray, midribs: lis
     midribs = list(midribs)
     groups_l = list(groups) if groups else list(range(len(midribs)))
     base_widths = dict(base_widths)
-    r_all = np.hypot(pts[:, 0], pts[:, 1])
-    phi_all = np.arctan2(pts[:, 1], pts[:, 0])
     min_nodes = int(SMOOTH_WIDTH_NODES * min_leaf / spacing)
     added = 0
-    for li in range(len(midribs)):
-        member = np.flatnonzero(leaf_label == li)
-        junction = midribs[li][0]
-        cup = _cup_bins(r_all[member], phi_all[member], junction, cell)
-        if cup is None:
-            continue
-        outer = cup[0]
+    for li, member, junction, (outer, _, _), r_all, phi_all in _cups(pts, leaf_label, midribs, cell):
         part = _smooth_regions(pts[member], spacing, min_nodes=min_nodes, reach=min_leaf)
         n_p = int(part.max()) + 1
         if n_p < 2:
