@@ -70,6 +70,25 @@ def turntable_first_hits(rng, cylinders=(), *, plates=(), sigma=0.012, n_angles=
     return out + (obj[hit],) if which else out
 
 
+def assert_cup_split_into(split, truth, n_leaves, *, min_share, junction):
+    """Checks a cup split (``segmentation._split_petals``' or ``_split_smooth_surfaces``'
+    return ``split``) against each point's true leaf ``truth`` (0..n_leaves - 1): every
+    true leaf a found leaf of its own, holding ``min_share`` or more of its points, its
+    midrib from ``junction``, and the merged leaf's base widths gone. Returns the midribs."""
+    label, midribs, groups, base_widths, added = split
+    assert added == n_leaves - 1 and len(midribs) == n_leaves
+    assert sorted(set(groups)) == list(range(n_leaves))  # each a leaf of its own
+    assert base_widths == {}  # the merged leaf's base widths were not its parts'
+    found = []
+    for i in range(n_leaves):
+        counts = np.bincount(truth[label == i], minlength=n_leaves)
+        assert counts.max() >= min_share * counts.sum(), counts
+        found.append(int(counts.argmax()))
+        assert np.allclose(midribs[i][0], junction)  # from the junction
+    assert sorted(found) == list(range(n_leaves))
+    return midribs
+
+
 def brute_force_first_hit(origin: np.ndarray, dirs: np.ndarray, vertices: np.ndarray,
                           faces: np.ndarray) -> np.ndarray:
     """Möller-Trumbore against every triangle: the obviously right reference.

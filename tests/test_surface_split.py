@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import assert_cup_split_into
 from plantsim.evaluation import segmentation
 
 CROWN_TOP_Z_M = 0.02
@@ -85,19 +86,9 @@ def test_a_cup_of_plates_crossing_edge_over_edge_is_split_into_its_plates(seed, 
     # seed 2 read 7 leaves (the lower halves of two, below where the next crosses them,
     # one piece), seven on seed 3 read 5 (three crossing blades one surface).
     pts, plate = _cup_of_plates(seed, n_plates=n_plates)
-    label, midribs, groups, base_widths, added = _split(pts)
-    assert added == n_plates - 1 and len(midribs) == n_plates
-    assert sorted(set(groups)) == list(range(n_plates))  # each a leaf of its own
-    assert base_widths == {}  # the merged leaf's base widths were not the plates'
-    found = []
-    for i in range(n_plates):
-        counts = np.bincount(plate[label == i], minlength=n_plates)
-        # Where two blades cross, a node holds points of both, and the crossing's nodes
-        # go with one of them (85-98 % on these seeds).
-        assert counts.max() >= 0.8 * counts.sum(), counts
-        found.append(int(counts.argmax()))
-        assert np.allclose(midribs[i][0], [0.0, 0.0, CROWN_TOP_Z_M])  # from the junction
-    assert sorted(found) == list(range(n_plates))
+    # Where two blades cross, a node holds points of both, and the crossing's nodes go
+    # with one of them (85-98 % on these seeds).
+    assert_cup_split_into(_split(pts), plate, n_plates, min_share=0.8, junction=[0.0, 0.0, CROWN_TOP_Z_M])
 
 
 def test_a_smooth_cup_with_no_crease_is_one_leaf():
