@@ -70,6 +70,16 @@ def turntable_first_hits(rng, cylinders=(), *, plates=(), sigma=0.012, n_angles=
     return out + (obj[hit],) if which else out
 
 
+def split_one_cup(split_step, pts, *, junction, cell_m, spacing_m, min_leaf_m):
+    """Runs a cup split step (``segmentation._split_petals`` or ``_split_smooth_surfaces``)
+    on ``pts`` as one found leaf, its midrib from ``junction`` to the points' mean and a
+    base width the split must drop, on a clean cloud's voxel ``cell_m`` (level-set bins
+    four voxels) and point spacing ``spacing_m``. Returns the step's return."""
+    midrib = np.vstack([junction, pts.mean(axis=0)])
+    return split_step(pts, np.zeros(len(pts), dtype=np.int64), [midrib], (0,), {0: np.ones(3)}, cell=cell_m,
+                      bin_w=4 * cell_m, min_leaf=min_leaf_m, spacing=spacing_m)
+
+
 def assert_cup_split_into(split, truth, n_leaves, *, min_share, junction):
     """Checks a cup split (``segmentation._split_petals``' or ``_split_smooth_surfaces``'
     return ``split``) against each point's true leaf ``truth`` (0..n_leaves - 1): every

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import assert_cup_split_into
+from conftest import assert_cup_split_into, split_one_cup
 from plantsim.evaluation import segmentation
 
 CROWN_TOP_Z_M = 0.02
@@ -42,11 +42,8 @@ def _cone_cup(seed, *, n_petals=8, tip_m=0.05, notch_m=0.045, elevation_deg=55.0
 
 
 def _split(pts, *, min_leaf_m=0.01):
-    junction = np.array([0.0, 0.0, CROWN_TOP_Z_M])
-    midrib = np.vstack([junction, pts.mean(axis=0)])
-    return segmentation._split_petals(
-        pts, np.zeros(len(pts), dtype=np.int64), [midrib], (0,), {0: np.ones(3)}, cell=CELL_M,
-        bin_w=4 * CELL_M, min_leaf=min_leaf_m, spacing=SPACING_M)
+    return split_one_cup(segmentation._split_petals, pts, junction=np.array([0.0, 0.0, CROWN_TOP_Z_M]), cell_m=CELL_M,
+                         spacing_m=SPACING_M, min_leaf_m=min_leaf_m)
 
 
 @pytest.mark.parametrize("seed, n_petals", [(0, 8), (1, 5), (2, 12)])
